@@ -1,0 +1,222 @@
+"""A multirotor model: the rigid body of an airframe plus a list of effects.
+
+The model's signature follows python-control: ``derivative(t, x, u)`` with the flat state of
+:mod:`multirotor_ros.model.state` and ``u`` the commanded rotor speeds [rad/s], batched over B.
+The base model (effects.md): gravity -m g e_z (world), thrust sum k_f omega_i^2 along the body z axis,
+the rotor drag torques and the full rigid-body rotation I dw/dt = tau - w x I w (seed 1 eq. 7 without
+its small-angle shortcuts). Everything else comes from effects.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import brentq
+
+from multirotor_ros.model import state as S
+from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
+from multirotor_ros.model.effects import Effect, EffectContext, make_effect
+from multirotor_ros.model.rotation import FloatArray, quat_multiply, quat_to_matrix
+
+
+class Model:
+    """Rigid body + effects; batched over a leading axis B."""
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        effects: Iterable[Effect | Mapping[str, Any]] | None = None,
+        gravity_m_s2: float = GRAVITY_M_S2,
+    ):
+        self.airframe = airframe
+        self.effects: tuple[Effect, ...] = tuple(
+            make_effect(e) for e in (airframe.effect_specs() if effects is None else effects)
+        )
+        ids = [e.id for e in self.effects]
+        duplicated = sorted({i for i in ids if ids.count(i) > 1})
+        if duplicated:
+            raise ValueError(f"effect(s) listed twice: {', '.join(duplicated)}; merge their parameters into one entry")
+        for effect in self.effects:
+            if effect.id == "actuator_fault" and np.any(effect["motor"] > airframe.n_rotors):
+                raise ValueError(
+                    f"actuator_fault: motor {effect['motor']} but {airframe.name} has {airframe.n_rotors} rotors"
+                )
+        self.gravity_m_s2 = gravity_m_s2
+        self.mass_kg: FloatArray = np.asarray(
+            airframe.mass_kg + sum((np.asarray(e.mass_delta_kg, dtype=float) for e in self.effects), np.zeros(()))
+        )
+        if np.any(self.mass_kg <= 0):
+            raise ValueError(f"mass_offset makes the mass non-positive: {self.mass_kg}")
+        self.inertia_kg_m2 = airframe.inertia_kg_m2
+        self._inertia_inv = np.linalg.inv(self.inertia_kg_m2)
+        lags = [e.rotor_time_constant_s for e in self.effects if e.rotor_time_constant_s is not None]
+        self.rotor_time_constant_s: FloatArray | None = np.asarray(lags[0]) if lags else None
+        self._thrust_term_effects = [e for e in self.effects if type(e).thrust_terms is not Effect.thrust_terms]
+        self._factor_effects = [e for e in self.effects if type(e).thrust_factor is not Effect.thrust_factor]
+        self._wrench_effects = [e for e in self.effects if type(e).wrench is not Effect.wrench]
+
+    # ------------------------------------------------------------------ structure
+
+    @property
+    def n_rotors(self) -> int:
+        """Rotor count of the airframe."""
+        return self.airframe.n_rotors
+
+    @property
+    def state_size(self) -> int:
+        """Length of the flat state vector."""
+        return S.state_size(self.n_rotors)
+
+    @property
+    def effect_ids(self) -> list[str]:
+        """Ids of the effects, in order."""
+        return [e.id for e in self.effects]
+
+    def effect(self, effect_id: str) -> Effect | None:
+        """The effect with this id, if the model has it."""
+        return next((e for e in self.effects if e.id == effect_id), None)
+
+    def with_effects(self, effects: Iterable[Effect | Mapping[str, Any]]) -> Model:
+        """The same airframe with another effect list."""
+        return Model(self.airframe, effects, self.gravity_m_s2)
+
+    def __repr__(self) -> str:
+        return f"Model({self.airframe.name}: rigid body + [{', '.join(map(repr, self.effects))}])"
+
+    # ------------------------------------------------------------------ forces
+
+    def context(
+        self,
+        t: ArrayLike,
+        p_WB_W: FloatArray,
+        v_WB_W: FloatArray,
+        R_WB: FloatArray,
+        w_WB_B: FloatArray,
+        omega: FloatArray,
+    ) -> EffectContext:
+        """Bundle a batch of states for the effects (all arrays have leading axis B)."""
+        batch = p_WB_W.shape[0]
+        return EffectContext(
+            t=np.broadcast_to(np.asarray(t, dtype=float), (batch,)),
+            p_WB_W=p_WB_W,
+            v_WB_W=v_WB_W,
+            R_WB=R_WB,
+            w_WB_B=w_WB_B,
+            omega=omega,
+            rotor_positions_m=self.airframe.rotor_positions_m,
+            lower_rotor_mask=self.airframe.lower_rotor_mask,
+            spin_signs=self.airframe.spin_signs,
+            k_f_N_s2=self.airframe.k_f_N_s2,
+        )
+
+    def thrust_factors(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
+        """(thrust factor, drag-torque factor), each (B, N): the product of every multiplicative effect."""
+        thrust_factor = np.ones_like(ctx.omega)
+        torque_factor = np.ones_like(ctx.omega)
+        for effect in self._factor_effects:
+            factor = effect.thrust_factor(ctx)
+            thrust_factor = thrust_factor * factor
+            if effect.scales_rotor_torque:
+                torque_factor = torque_factor * factor
+        return thrust_factor, torque_factor
+
+    def rotor_thrusts(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
+        """Per-rotor thrust [N] (B, N) and the drag-torque factor (B, N)."""
+        thrust = self.airframe.k_f_N_s2 * ctx.omega**2
+        for effect in self._thrust_term_effects:
+            thrust = thrust + effect.thrust_terms(ctx)
+        thrust_factor, torque_factor = self.thrust_factors(ctx)
+        return thrust * thrust_factor, torque_factor
+
+    def wrench(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Force in world (gravity excluded) [N], torque in body [N m], per-rotor thrust [N]."""
+        thrust, torque_factor = self.rotor_thrusts(ctx)
+        positions = self.airframe.rotor_positions_m
+        total = thrust.sum(axis=1)
+        F_W = total[:, None] * ctx.e_z_W
+        tau_B = np.stack(
+            [
+                thrust @ positions[:, 1],
+                -(thrust @ positions[:, 0]),
+                (self.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor) @ self.airframe.spin_signs,
+            ],
+            axis=1,
+        )
+        for effect in self._wrench_effects:
+            force, torque = effect.wrench(ctx, thrust)
+            F_W = F_W + force
+            tau_B = tau_B + torque
+        return F_W, tau_B, thrust
+
+    def accelerations(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
+        """Linear acceleration in world [m/s^2] (gravity included) and angular acceleration in body."""
+        F_W, tau_B, _ = self.wrench(ctx)
+        a_W = F_W / self.mass_kg[..., None]
+        a_W[:, 2] -= self.gravity_m_s2
+        w = ctx.w_WB_B
+        gyro = np.cross(w, w @ self.inertia_kg_m2.T)
+        return a_W, (tau_B - gyro) @ self._inertia_inv.T
+
+    # ------------------------------------------------------------------ dynamics
+
+    def check_command(self, u: ArrayLike, batch: int) -> FloatArray:
+        """Rotor-speed commands as (B, N); raises ValueError naming the vehicle and rotor if not finite."""
+        command = np.asarray(u, dtype=float)
+        if command.shape[-1:] != (self.n_rotors,):
+            raise ValueError(f"rotor command has {command.shape[-1:]} entries, {self.airframe.name} has {self.n_rotors} rotors")
+        command = np.broadcast_to(command, (batch, self.n_rotors))
+        bad = ~np.isfinite(command)
+        if bad.any():
+            vehicle, rotor = np.argwhere(bad)[0]
+            raise ValueError(
+                f"rotor command is not finite: vehicle {vehicle}, rotor_{rotor + 1} = {command[vehicle, rotor]}"
+            )
+        return command
+
+    def effective_rotor_speeds(self, x: FloatArray, u: FloatArray) -> FloatArray:
+        """The speeds that make thrust: the lagged rotor state with motor_lag, else the command."""
+        return x[:, S.ROTORS_START :] if self.rotor_time_constant_s is not None else u
+
+    def derivative(self, t: ArrayLike, x: FloatArray, u: FloatArray) -> FloatArray:
+        """dx/dt of the flat state (B, 13 + N) for rotor-speed inputs u (B, N)."""
+        omega = self.effective_rotor_speeds(x, u)
+        q = x[:, S.QUATERNION]
+        ctx = self.context(t, x[:, S.POSITION], x[:, S.VELOCITY], quat_to_matrix(q), x[:, S.BODY_RATE], omega)
+        a_W, w_dot_B = self.accelerations(ctx)
+        dx = np.empty_like(x)
+        dx[:, S.POSITION] = x[:, S.VELOCITY]
+        dx[:, S.VELOCITY] = a_W
+        w_quat = np.zeros_like(q)
+        w_quat[:, 1:] = x[:, S.BODY_RATE]
+        dx[:, S.QUATERNION] = 0.5 * quat_multiply(q, w_quat)
+        dx[:, S.BODY_RATE] = w_dot_B
+        if self.rotor_time_constant_s is None:
+            dx[:, S.ROTORS_START :] = 0.0
+        else:
+            dx[:, S.ROTORS_START :] = (u - omega) / self.rotor_time_constant_s[..., None]
+        return dx
+
+    def mechanical_energy(self, x: FloatArray) -> FloatArray:
+        """Kinetic + potential energy [J] of each vehicle: the Hamiltonian of seed 2 (eq. 5)."""
+        v = x[:, S.VELOCITY]
+        w = x[:, S.BODY_RATE]
+        kinetic = 0.5 * self.mass_kg * np.sum(v * v, axis=1) + 0.5 * np.einsum("bi,ij,bj->b", w, self.inertia_kg_m2, w)
+        return kinetic + self.mass_kg * self.gravity_m_s2 * x[:, 2]
+
+    def hover_speed_rad_s(self, height_m: float = 10.0) -> float:
+        """Equal rotor speed that holds the vehicle still and level at ``height_m`` (first parameter set)."""
+        x = S.make_state(self.n_rotors, position_m=(0.0, 0.0, height_m))
+
+        def vertical_acceleration(speed: float) -> float:
+            omega = np.full((1, self.n_rotors), speed)
+            ctx = self.context(1e9, x[:, S.POSITION], x[:, S.VELOCITY], np.eye(3)[None], x[:, S.BODY_RATE], omega)
+            a_W, _ = self.accelerations(ctx)
+            return float(a_W[0, 2])
+
+        top = self.airframe.rotor_speed_max_rad_s
+        if vertical_acceleration(top) < 0:
+            raise ValueError(f"{self.airframe.name} cannot hover: full speed {top:g} rad/s gives less thrust than weight")
+        return float(brentq(vertical_acceleration, 0.0, top, xtol=1e-9))
