@@ -181,7 +181,8 @@ class Model:
         return x[:, S.ROTORS_START :] if self.rotor_time_constant_s is not None else u
 
     def derivative(self, t: ArrayLike, x: FloatArray, u: FloatArray) -> FloatArray:
-        """dx/dt of the flat state (B, 13 + N) for rotor-speed inputs u (B, N)."""
+        """dx/dt of the flat state (B, 13 + N) for rotor-speed inputs u (B, N) or (N,)."""
+        u = np.broadcast_to(np.asarray(u, dtype=float), (x.shape[0], self.n_rotors))
         omega = self.effective_rotor_speeds(x, u)
         q = x[:, S.QUATERNION]
         ctx = self.context(t, x[:, S.POSITION], x[:, S.VELOCITY], quat_to_matrix(q), x[:, S.BODY_RATE], omega)
@@ -198,6 +199,20 @@ class Model:
         else:
             dx[:, S.ROTORS_START :] = (u - omega) / self.rotor_time_constant_s[..., None]
         return dx
+
+    def post_step(self, x: FloatArray, command: FloatArray) -> None:
+        """After an integration step: unit quaternions, algebraic rotor speeds when there is no motor lag."""
+        q = x[:, S.QUATERNION]
+        x[:, S.QUATERNION] = q / np.linalg.norm(q, axis=1, keepdims=True)
+        if self.rotor_time_constant_s is None:
+            x[:, S.ROTORS_START :] = command
+
+    def rest_on_ground(self, x: FloatArray, height_m: float) -> None:
+        """Ground contact: no sinking below ``height_m``; while resting the ground holds the vehicle still."""
+        below = x[:, 2] < height_m
+        x[below, 2] = height_m
+        x[below, 3:6] = 0.0
+        x[below, S.BODY_RATE] = 0.0
 
     def mechanical_energy(self, x: FloatArray) -> FloatArray:
         """Kinetic + potential energy [J] of each vehicle: the Hamiltonian of seed 2 (eq. 5)."""
