@@ -62,27 +62,24 @@ def pack_parameters(model: Model, batch: int) -> FloatArray:
     return rows
 
 
+# Rotor sums: total thrust, the three body torques, sum of speeds, signed rotor momentum per J_r.
+N_SUMS = 6
+
+
 @njit(cache=True)
-def _derivative(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out):  # noqa: C901
+def _rotor_sums(t, x, u, prm, positions, spin, lower, sums):
+    """Per-rotor thrust and drag torque, summed; also d(omega)/dt of the rotor states (motor lag)."""
     n = positions.shape[0]
     qw, qx, qy, qz = x[6], x[7], x[8], x[9]
-    r00 = 1 - 2 * (qy * qy + qz * qz)
-    r01 = 2 * (qx * qy - qw * qz)
     r02 = 2 * (qx * qz + qw * qy)
-    r10 = 2 * (qx * qy + qw * qz)
-    r11 = 1 - 2 * (qx * qx + qz * qz)
     r12 = 2 * (qy * qz - qw * qx)
     r20 = 2 * (qx * qz - qw * qy)
     r21 = 2 * (qy * qz + qw * qx)
     r22 = 1 - 2 * (qx * qx + qy * qy)
-    vx, vy, vz = x[3], x[4], x[5]
-    wx, wy, wz = x[10], x[11], x[12]
-    mass, gravity, k_f, k_t = prm[0], prm[1], prm[2], prm[3]
-    c_x, c_y, c_z, k_h, k_f1, eta_lower = prm[4], prm[5], prm[6], prm[7], prm[8], prm[9]
+    k_f, k_t, k_f1, eta_lower = prm[2], prm[3], prm[8], prm[9]
     radius, k_v, tau = prm[10], prm[11], prm[12]
     fault_motor, effectiveness, t_fault = int(prm[16]), prm[17], prm[18]
-    j_r, r_x, r_y = prm[19], prm[20], prm[21]
-    climb = vx * r02 + vy * r12 + vz * r22
+    climb = x[3] * r02 + x[4] * r12 + x[5] * r22
     total = 0.0
     tau_x = 0.0
     tau_y = 0.0
@@ -109,7 +106,42 @@ def _derivative(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out)
         tau_z += spin[i] * k_t * w * w * torque_factor
         omega_sum += w
         spin_momentum -= spin[i] * w
-        out[13 + i] = (u[i] - w) / tau if tau > 0 else 0.0
+    sums[0] = total
+    sums[1] = tau_x
+    sums[2] = tau_y
+    sums[3] = tau_z
+    sums[4] = omega_sum
+    sums[5] = spin_momentum
+
+
+@njit(cache=True)
+def _rotor_sums_vary_within_step(t, dt, prm):
+    """Whether the rotor sums depend on the state or change time inside [t, t + dt]."""
+    fault_starts = int(prm[16]) > 0 and t < prm[18] <= t + dt
+    return prm[12] > 0 or prm[11] != 0.0 or prm[10] > 0 or fault_starts
+
+
+@njit(cache=True)
+def _rigid_body(x, u, prm, inertia, inertia_inv, sums, out):
+    """dx/dt given the rotor sums: forces in world, torques in body, quaternion kinematics, rotor lag."""
+    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    r00 = 1 - 2 * (qy * qy + qz * qz)
+    r01 = 2 * (qx * qy - qw * qz)
+    r02 = 2 * (qx * qz + qw * qy)
+    r10 = 2 * (qx * qy + qw * qz)
+    r11 = 1 - 2 * (qx * qx + qz * qz)
+    r12 = 2 * (qy * qz - qw * qx)
+    r20 = 2 * (qx * qz - qw * qy)
+    r21 = 2 * (qy * qz + qw * qx)
+    r22 = 1 - 2 * (qx * qx + qy * qy)
+    vx, vy, vz = x[3], x[4], x[5]
+    wx, wy, wz = x[10], x[11], x[12]
+    mass, gravity = prm[0], prm[1]
+    c_x, c_y, c_z, k_h, tau = prm[4], prm[5], prm[6], prm[7], prm[12]
+    j_r, r_x, r_y = prm[19], prm[20], prm[21]
+    total, tau_x, tau_y, tau_z, omega_sum, spin_momentum = sums[0], sums[1], sums[2], sums[3], sums[4], sums[5]
+    for i in range(x.shape[0] - 13):
+        out[13 + i] = (u[i] - x[13 + i]) / tau if tau > 0 else 0.0
     # Forces in world: thrust along body z, drags, constant force.
     fx = total * r02 - c_x * vx * abs(vx) + prm[13]
     fy = total * r12 - c_y * vy * abs(vy) + prm[14]
@@ -124,10 +156,8 @@ def _derivative(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out)
         fz += gain * (r20 * bx + r21 * by)
     # Torques in body: propeller gyroscope and a moved centre of gravity.
     h = j_r * spin_momentum
-    tau_x += -(wy * h)
-    tau_y += wx * h
-    tau_x += -r_y * total
-    tau_y += r_x * total
+    tau_x += -(wy * h) - r_y * total
+    tau_y += wx * h + r_x * total
     out[0] = vx
     out[1] = vy
     out[2] = vz
@@ -149,8 +179,19 @@ def _derivative(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out)
     out[12] = inertia_inv[2, 0] * mx + inertia_inv[2, 1] * my + inertia_inv[2, 2] * mz
 
 
+@njit(cache=True)
+def _derivative(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out):
+    sums = np.empty(N_SUMS)
+    _rotor_sums(t, x, u, prm, positions, spin, lower, sums)
+    _rigid_body(x, u, prm, inertia, inertia_inv, sums, out)
+
+
 def _advance(t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height):
-    """RK4 ``steps`` times for every vehicle; returns the first step index that went non-finite (-1 if none)."""
+    """RK4 ``steps`` times for every vehicle; returns the first step index that went non-finite (-1 if none).
+
+    Without motor lag, inflow, ground effect or a fault starting inside the step, the rotor sums are
+    the same at the four RK4 stages (they depend on the held command only): computed once per step.
+    """
     batch, size = x.shape
     failed = np.full(batch, -1)
     for b in prange(batch):
@@ -159,21 +200,30 @@ def _advance(t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, st
         k3 = np.empty(size)
         k4 = np.empty(size)
         tmp = np.empty(size)
+        sums = np.empty(N_SUMS)
         xb = x[b]
         ub = u[b]
         pb = prm[b]
         for step in range(steps):
             t = t0 + step * dt
-            _derivative(t, xb, ub, pb, inertia, inertia_inv, positions, spin, lower, k1)
+            varying = _rotor_sums_vary_within_step(t, dt, pb)
+            _rotor_sums(t, xb, ub, pb, positions, spin, lower, sums)
+            _rigid_body(xb, ub, pb, inertia, inertia_inv, sums, k1)
             for j in range(size):
                 tmp[j] = xb[j] + 0.5 * dt * k1[j]
-            _derivative(t + 0.5 * dt, tmp, ub, pb, inertia, inertia_inv, positions, spin, lower, k2)
+            if varying:
+                _rotor_sums(t + 0.5 * dt, tmp, ub, pb, positions, spin, lower, sums)
+            _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k2)
             for j in range(size):
                 tmp[j] = xb[j] + 0.5 * dt * k2[j]
-            _derivative(t + 0.5 * dt, tmp, ub, pb, inertia, inertia_inv, positions, spin, lower, k3)
+            if varying:
+                _rotor_sums(t + 0.5 * dt, tmp, ub, pb, positions, spin, lower, sums)
+            _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k3)
             for j in range(size):
                 tmp[j] = xb[j] + dt * k3[j]
-            _derivative(t + dt, tmp, ub, pb, inertia, inertia_inv, positions, spin, lower, k4)
+            if varying:
+                _rotor_sums(t + dt, tmp, ub, pb, positions, spin, lower, sums)
+            _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k4)
             checksum = 0.0
             for j in range(size):
                 xb[j] += dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
