@@ -1,0 +1,83 @@
+"""Build script of the ament_python package multirotor_ros (colcon, pip and wheels alike)."""
+
+import importlib.util
+import os
+import xml.etree.ElementTree as ElementTree
+from glob import glob
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+HERE = Path(__file__).resolve().parent
+# scripts/ament_layout.py also makes the editable venv's layout: one definition of the launchers.
+_spec = importlib.util.spec_from_file_location("ament_layout", HERE / "scripts" / "ament_layout.py")
+ament_layout = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ament_layout)
+PACKAGE = ament_layout.PACKAGE
+
+try:
+    from setuptools.command.bdist_wheel import bdist_wheel
+except ImportError:  # setuptools < 70.1 (Ubuntu 24.04 has 68): the wheel package provides it
+    try:
+        from wheel.bdist_wheel import bdist_wheel
+    except ImportError:  # colcon with neither: it never builds wheels, so no launcher step is needed
+        bdist_wheel = None
+
+# package.xml is the one place for the name, version and license that ROS tools read too.
+_manifest = ElementTree.parse(HERE / "package.xml").getroot()
+assert _manifest.findtext("name") == PACKAGE, "package.xml <name> must be multirotor_ros"
+NODES = ament_layout.node_executables(HERE)
+
+cmdclass = {}
+if bdist_wheel is not None:
+
+    class BdistWheelWithLaunchers(bdist_wheel):
+        """A wheel that also carries ``lib/multirotor_ros/<executable>`` for ``ros2 run``.
+
+        A wheel's console scripts always land in ``<prefix>/bin`` (setup.cfg's install_scripts does
+        not apply to wheels), so small launchers are added as data_files for wheels only. colcon runs
+        ``setup.py install``/``develop``, where setup.cfg already puts the console scripts in
+        lib/multirotor_ros: adding the launchers there too would install two files at one path.
+        """
+
+        def run(self) -> None:
+            build_base = Path(self.get_finalized_command("build").build_base)
+            launchers = ament_layout.write_launchers(build_base / "ament_launchers", NODES)
+            # distutils opens data_files relative to the working directory and refuses absolute paths.
+            self.distribution.data_files.append((f"lib/{PACKAGE}", [os.path.relpath(p) for p in launchers]))
+            super().run()
+
+    cmdclass["bdist_wheel"] = BdistWheelWithLaunchers
+
+setup(
+    name=PACKAGE,
+    version=_manifest.findtext("version"),
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.py"))),
+    ],
+    python_requires=">=3.12",
+    # rclpy and the message packages are not here: they come from a ROS 2 Jazzy install (package.xml) or
+    # from the ros-jazzy-* wheels that scripts/bootstrap.sh installs; naming them here would make pip
+    # install a second ROS over a sourced one.
+    install_requires=["numpy", "scipy", "numba", "pyyaml", "matplotlib", "pymavlink", "rosbags", "pyulog"],
+    # setuptools: test/test_packaging.py builds the wheel offline, without pip's build isolation
+    # (>= 70.1: bdist_wheel built in, even where a system ROS venv sees an older system setuptools).
+    extras_require={
+        "test": ["pytest", "pytest-timeout", "hypothesis", "ruff", "mavproxy", "setuptools>=70.1"]
+    },
+    zip_safe=True,
+    maintainer=_manifest.findtext("maintainer"),
+    maintainer_email=_manifest.find("maintainer").get("email"),
+    description=" ".join(_manifest.findtext("description").split()),
+    license=_manifest.findtext("license"),
+    cmdclass=cmdclass,
+    entry_points={
+        "console_scripts": [f"{name} = {PACKAGE}.nodes.{name}:main" for name in NODES]
+        + [f"multirotor = {PACKAGE}.cli:main"],
+    },
+)
