@@ -15,10 +15,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from multirotor_ros.model.rotation import FloatArray, matrix_to_quat, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray
 
 ENU_TO_NED: FloatArray = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 FLU_TO_FRD: FloatArray = np.diag([1.0, -1.0, -1.0])
+_HALF_SQRT2 = float(np.sqrt(0.5))
 
 
 def enu_to_ned(vector_enu: ArrayLike) -> FloatArray:
@@ -52,13 +53,23 @@ def rotation_ned_frd_to_enu_flu(R_NED_FRD: ArrayLike) -> FloatArray:
 
 
 def quat_enu_flu_to_ned_frd(q_WB: ArrayLike) -> FloatArray:
-    """Attitude quaternion (w, x, y, z), body FLU -> world ENU, as body FRD -> world NED (w >= 0)."""
-    return matrix_to_quat(rotation_enu_flu_to_ned_frd(quat_to_matrix(q_WB)))
+    """Attitude quaternion(s) (..., 4) (w, x, y, z), body FLU -> world ENU, as body FRD -> world NED (w >= 0).
+
+    q_NED_FRD = q(T_W) * q_WB * q(T_B) with q(T_W) = (0, 1/sqrt2, 1/sqrt2, 0) (half a turn about the
+    east-north diagonal) and q(T_B) = (0, 1, 0, 0) (half a turn about x). Multiplied out this is
+    (w + z, x + y, x - y, w - z) / sqrt2, up to the sign fixed by w >= 0; the same as
+    :func:`rotation_enu_flu_to_ned_frd` on matrices, without building them (it runs at every physics
+    step of the MAVLink bridge). The map is its own inverse.
+    """
+    q = np.asarray(q_WB, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.stack([w + z, x + y, x - y, w - z], axis=-1) * _HALF_SQRT2
+    return out * np.where(out[..., :1] < 0, -1.0, 1.0)
 
 
 def quat_ned_frd_to_enu_flu(q_NED_FRD: ArrayLike) -> FloatArray:
-    """Attitude quaternion (w, x, y, z), body FRD -> world NED, as body FLU -> world ENU (w >= 0)."""
-    return matrix_to_quat(rotation_ned_frd_to_enu_flu(quat_to_matrix(q_NED_FRD)))
+    """Attitude quaternion(s) (w, x, y, z), body FRD -> world NED, as body FLU -> world ENU (w >= 0)."""
+    return quat_enu_flu_to_ned_frd(q_NED_FRD)
 
 
 def yaw_enu_to_ned(yaw_enu_rad: ArrayLike) -> FloatArray:

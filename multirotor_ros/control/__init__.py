@@ -1,1 +1,13 @@
+"""Control of one multirotor with the law of seed 1 (§II-B, eqs. 8-10); pure numpy, no ROS.
 
+- :mod:`.law`: :class:`SaturationController` (nested saturations for x/y through roll and pitch, PID for
+  altitude and yaw), :func:`saturate` (eq. 10).
+- :mod:`.allocation`: :class:`Allocator`, wrench -> rotor speeds with roll/pitch before thrust before yaw.
+- :mod:`.gains`: :class:`ControllerGains` under the paper's names, read from an airframe YAML.
+"""
+
+from multirotor_ros.control.allocation import Allocator
+from multirotor_ros.control.gains import ControllerGains, airframe_gains, gains_from_section
+from multirotor_ros.control.law import SaturationController, saturate
+
+__all__ = ["Allocator", "ControllerGains", "SaturationController", "airframe_gains", "gains_from_section", "saturate"]

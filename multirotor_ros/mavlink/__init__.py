@@ -1,1 +1,48 @@
+"""MAVLink for the simulated vehicle: fly it from PX4 or ArduPilot SITL, watch it from a ground station.
 
+Pure Python (pymavlink, numpy), no rclpy: :mod:`multirotor_ros.nodes.mavlink_bridge` is the ROS
+wrapper. Frames are NED / FRD on the wire and ENU / FLU inside; every conversion goes through
+:mod:`multirotor_ros.frames` (:func:`.messages.ned_view` is the one place that applies it to a state).
+
+Modules
+    :mod:`.wire` codec and sockets, refusal counts; :mod:`.signing` MAVLink 2 signing policy;
+    :mod:`.sensors` barometer (ISA), magnetometer and GPS synthesis around a home;
+    :mod:`.actuators` actuator outputs -> rotor speeds through the motor map;
+    :mod:`.messages` state in NED/FRD, message schedules; :mod:`.vehicle` the state type and the
+    physics interface; :mod:`.physics` the package's VehicleSimulator as that physics;
+    :mod:`.px4` PX4's simulator interface; :mod:`.ardupilot` ArduPilot's JSON interface;
+    :mod:`.gcs` ground-station link; :mod:`.bridge` the event loop tying them together.
+
+Architecture: who owns the physics
+    In lockstep the flight stack decides when time advances: the simulation may take exactly one step
+    per actuator message and must answer with that step's sensors before the flight stack continues.
+    Doing this across ROS topics (bridge publishes ``motor_speed_cmd``, simulator node steps, publishes
+    ``imu``, bridge forwards) would put two DDS hops and two executors into every step, make the
+    round trip depend on the simulator node's pacing (it runs on its own clock and rate), and leave
+    no way to hold the simulator until the next actuator message. So the bridge has two modes:
+
+    internal physics (``internal_physics: true``, the default with a flight stack)
+        The bridge owns a simulation core in-process: the same
+        :class:`~multirotor_ros.simulation.VehicleSimulator` as the simulator node (model, integrator,
+        sensor noise), wrapped by :class:`.physics.SimulatorPhysics`. PX4 in lockstep: one step of
+        ``lockstep_step_s`` per HIL_ACTUATOR_CONTROLS, the HIL_SENSOR of that step answered at once;
+        PX4 without lockstep: steps on the wall clock with the latest command. ArduPilot: one step of
+        1/frame_rate per new frame count. The node publishes what the core produces (``odom``,
+        ``imu``, ``motor_speeds``, optionally ``clock``) and the commands (``motor_speed_cmd``), so the
+        identifier and every other node see the flight as if the simulator node flew it. Do not run a
+        simulator node in the same namespace then: two sources would publish ``odom``. Without a
+        connected flight stack the physics stands still: the vehicle keeps its state.
+
+    external physics (``internal_physics: false``; the only mode without a flight stack)
+        The simulator node owns the physics and runs on its own clock. The bridge subscribes ``odom``,
+        ``imu`` and ``motor_speeds`` (as interfaces.md lists) and forwards: every ``imu`` message
+        becomes a HIL_SENSOR (PX4) or answers a waiting frame (ArduPilot), and actuator messages become
+        ``motor_speed_cmd``. Lockstep is not possible here: PX4 follows the simulator's time stamps,
+        ArduPilot is answered at the simulator's pace. Ground-station-only use (``flight_stack: none``)
+        is this mode: telemetry from the topics, setpoints to ``setpoint``.
+
+    The ground-station link works the same in both modes and runs on the wall clock. The per-step
+    cost outside the physics is one pymavlink parse and three message packs (HIL_SENSOR every step,
+    HIL_GPS and HIL_STATE_QUATERNION when due), all in the loop thread with no ROS on the path; ROS
+    publishing happens at ``publish_rate_hz``, not per step (bench/bench_mavlink.py measures both).
+"""

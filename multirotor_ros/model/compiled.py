@@ -140,8 +140,11 @@ def _rigid_body(x, u, prm, inertia, inertia_inv, sums, out):
     c_x, c_y, c_z, k_h, tau = prm[4], prm[5], prm[6], prm[7], prm[12]
     j_r, r_x, r_y = prm[19], prm[20], prm[21]
     total, tau_x, tau_y, tau_z, omega_sum, spin_momentum = sums[0], sums[1], sums[2], sums[3], sums[4], sums[5]
-    for i in range(x.shape[0] - 13):
-        out[13 + i] = (u[i] - x[13 + i]) / tau if tau > 0 else 0.0
+    if tau > 0:
+        for i in range(x.shape[0] - 13):
+            out[13 + i] = (u[i] - x[13 + i]) / tau
+    else:
+        out[13:] = 0.0
     # Forces in world: thrust along body z, drags, constant force.
     fx = total * r02 - c_x * vx * abs(vx) + prm[13]
     fy = total * r12 - c_y * vy * abs(vy) + prm[14]
@@ -161,9 +164,10 @@ def _rigid_body(x, u, prm, inertia, inertia_inv, sums, out):
     out[0] = vx
     out[1] = vy
     out[2] = vz
-    out[3] = fx / mass
-    out[4] = fy / mass
-    out[5] = fz / mass - gravity
+    inverse_mass = 1.0 / mass
+    out[3] = fx * inverse_mass
+    out[4] = fy * inverse_mass
+    out[5] = fz * inverse_mass - gravity
     out[6] = 0.5 * (-qx * wx - qy * wy - qz * wz)
     out[7] = 0.5 * (qw * wx + qy * wz - qz * wy)
     out[8] = 0.5 * (qw * wy - qx * wz + qz * wx)
@@ -204,28 +208,30 @@ def _advance(t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, st
         xb = x[b]
         ub = u[b]
         pb = prm[b]
+        # Without motor lag the rotor speeds are not integrated: they equal the held command.
+        integrated = size if pb[12] > 0 else 13
         for step in range(steps):
             t = t0 + step * dt
             varying = _rotor_sums_vary_within_step(t, dt, pb)
             _rotor_sums(t, xb, ub, pb, positions, spin, lower, sums)
             _rigid_body(xb, ub, pb, inertia, inertia_inv, sums, k1)
-            for j in range(size):
+            for j in range(integrated):
                 tmp[j] = xb[j] + 0.5 * dt * k1[j]
             if varying:
                 _rotor_sums(t + 0.5 * dt, tmp, ub, pb, positions, spin, lower, sums)
             _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k2)
-            for j in range(size):
+            for j in range(integrated):
                 tmp[j] = xb[j] + 0.5 * dt * k2[j]
             if varying:
                 _rotor_sums(t + 0.5 * dt, tmp, ub, pb, positions, spin, lower, sums)
             _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k3)
-            for j in range(size):
+            for j in range(integrated):
                 tmp[j] = xb[j] + dt * k3[j]
             if varying:
                 _rotor_sums(t + dt, tmp, ub, pb, positions, spin, lower, sums)
             _rigid_body(tmp, ub, pb, inertia, inertia_inv, sums, k4)
             checksum = 0.0
-            for j in range(size):
+            for j in range(integrated):
                 xb[j] += dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
                 checksum += xb[j]
             norm = np.sqrt(xb[6] ** 2 + xb[7] ** 2 + xb[8] ** 2 + xb[9] ** 2)
