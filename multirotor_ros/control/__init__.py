@@ -10,4 +10,11 @@ from multirotor_ros.control.allocation import Allocator
 from multirotor_ros.control.gains import ControllerGains, airframe_gains, gains_from_section
 from multirotor_ros.control.law import SaturationController, saturate
 
-__all__ = ["Allocator", "ControllerGains", "SaturationController", "airframe_gains", "gains_from_section", "saturate"]
+__all__ = [
+    "Allocator",
+    "ControllerGains",
+    "SaturationController",
+    "airframe_gains",
+    "gains_from_section",
+    "saturate",
+]

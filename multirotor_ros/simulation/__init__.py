@@ -1,0 +1,12 @@
+"""Vehicle simulation without ROS: the physics model with sensors, command clamp, watchdog and faults.
+
+- :mod:`.vehicle`: :class:`VehicleSimulator`, one vehicle stepped in integer nanoseconds.
+- :mod:`.sensors`: IMU (3DM-GX3-25), SRF08 range, motion capture, ESC speed reports.
+- :mod:`.flight`: :func:`simulate_flight`, the closed loop with the seed 1 controller, as a flight log.
+- :mod:`.pacing`: real-time factor and lockstep rules of the simulator node, as pure functions.
+"""
+
+from multirotor_ros.simulation.flight import read_setpoints, simulate_flight
+from multirotor_ros.simulation.vehicle import Reading, VehicleSimulator
+
+__all__ = ["Reading", "VehicleSimulator", "read_setpoints", "simulate_flight"]

@@ -1,0 +1,254 @@
+"""The seed 1 control law: saturation (eq. 10), signs in ENU/FLU, allocation, gains, closed-loop flights.
+
+Every shipped airframe flies the closed loop offline (simulate_flight).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from multirotor_ros.control.allocation import Allocator
+from multirotor_ros.control.gains import GAIN_UNITS, GainError, airframe_gains, gains_from_section
+from multirotor_ros.control.law import SaturationController, saturate, wrap_angle
+from multirotor_ros.model.airframe import AirframeError, airframe_from_dict, load_airframe
+from multirotor_ros.model.rotation import euler_to_quat
+from multirotor_ros.resources import available_airframes
+from multirotor_ros.simulation.flight import simulate_flight
+
+AIRFRAMES = available_airframes()
+finite = st.floats(-1e6, 1e6, allow_nan=False)
+
+
+# ------------------------------------------------------------------ eq. 10
+
+
+@given(s=finite, b=st.floats(1e-6, 1e6))
+def test_saturation_is_bounded_identity_inside_and_odd(s: float, b: float) -> None:
+    value = float(saturate(s, b))
+    assert abs(value) <= b
+    if abs(s) < b:
+        assert value == s
+    else:
+        assert value == math.copysign(b, s)
+    assert float(saturate(-s, b)) == -value
+
+
+@given(a=finite, c=finite, b=st.floats(1e-6, 1e6))
+def test_saturation_is_monotone(a: float, c: float, b: float) -> None:
+    low, high = sorted((a, c))
+    assert saturate(low, b) <= saturate(high, b)
+
+
+@given(angle=st.floats(-100.0, 100.0))
+def test_wrap_angle_stays_in_range_and_keeps_the_direction(angle: float) -> None:
+    wrapped = wrap_angle(angle)
+    assert -math.pi <= wrapped < math.pi
+    assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-9)
+    assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-9)
+
+
+# ------------------------------------------------------------------ signs of eq. 9 in ENU / FLU
+
+
+@pytest.fixture(scope="module")
+def x8():
+    return load_airframe("x8_octorotor")
+
+
+def _torque(airframe, position, yaw=0.0, velocity=(0.0, 0.0, 0.0)):
+    law = SaturationController(airframe, airframe_gains(airframe))
+    q = euler_to_quat([0.0, 0.0, yaw])
+    output = law.update(0.0, position, velocity, q, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), yaw)
+    return output.torque_B
+
+
+def test_vehicle_east_of_the_target_pitches_nose_up_to_fly_west(x8) -> None:
+    # +theta accelerates towards +x (seed 1 eq. 7); the vehicle is at +x, so it must pitch negative.
+    assert _torque(x8, (0.5, 0.0, 1.0))[1] < 0
+
+
+def test_vehicle_north_of_the_target_rolls_right_to_fly_south(x8) -> None:
+    # +phi accelerates towards -y (seed 1 eq. 7, -C_psi S_phi): at +y the vehicle must roll positive.
+    assert _torque(x8, (0.0, 0.5, 1.0))[0] > 0
+
+
+def test_errors_are_taken_in_the_heading_frame(x8) -> None:
+    # Facing north (yaw +90 deg), a target to the east is on the vehicle's right (body -y): it must roll
+    # positive, and not pitch at all.
+    torque = _torque(x8, (-0.5, 0.0, 1.0), yaw=math.pi / 2)
+    assert torque[0] > 0
+    assert abs(torque[1]) < 1e-12
+
+
+def test_velocity_terms_damp_the_motion(x8) -> None:
+    # Moving east at the target: decelerate, i.e. pitch negative as for a position east of the target.
+    assert _torque(x8, (0.0, 0.0, 1.0), velocity=(1.0, 0.0, 0.0))[1] < 0
+
+
+# ------------------------------------------------------------------ allocation
+
+
+@pytest.fixture(scope="module", params=AIRFRAMES)
+def allocator(request):
+    return Allocator.for_airframe(load_airframe(request.param))
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_a_wrench_whose_least_squares_speeds_fit_is_allocated_exactly(allocator: Allocator, data) -> None:
+    n = allocator.matrix.shape[1]
+    top = math.sqrt(allocator.high)
+    speeds = np.array(data.draw(st.lists(st.floats(0.2 * top, 0.8 * top), min_size=n, max_size=n)))
+    wrench = allocator.matrix @ speeds**2
+    pinv = np.linalg.pinv(allocator.matrix)
+    # The priorities add yaw last: exactness is promised when the pseudo-inverse solution fits with and
+    # without its yaw part (for a square matrix, whenever the wrench is feasible at all).
+    for partial in (pinv @ wrench, pinv @ np.append(wrench[:3], 0.0)):
+        assume(np.all((partial >= allocator.low) & (partial <= allocator.high)))
+    result = allocator.allocate(wrench[0], wrench[1:])
+    np.testing.assert_allclose(allocator.matrix @ result.omega_rad_s**2, wrench, rtol=1e-9, atol=1e-9)
+    assert not result.saturated
+
+
+@settings(max_examples=100, deadline=None)
+@given(thrust=st.floats(-100.0, 200.0), tau=st.lists(st.floats(-20.0, 20.0), min_size=3, max_size=3))
+def test_allocated_speeds_stay_in_range(allocator: Allocator, thrust: float, tau: list[float]) -> None:
+    result = allocator.allocate(thrust, tau)
+    assert np.all(result.omega_rad_s >= math.sqrt(allocator.low) - 1e-9)
+    assert np.all(result.omega_rad_s <= math.sqrt(allocator.high) + 1e-9)
+    assert 0.0 <= result.roll_pitch_fraction <= 1.0
+    assert 0.0 <= result.yaw_fraction <= 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(yaw_torque=st.floats(1.0, 50.0), sign=st.sampled_from([-1.0, 1.0]))
+def test_yaw_gives_way_before_thrust_and_attitude(
+    allocator: Allocator, yaw_torque: float, sign: float
+) -> None:
+    hover = 0.4 * allocator.max_thrust_N
+    roll_pitch = (0.05 * hover * 0.1, -0.05 * hover * 0.1)
+    result = allocator.allocate(hover, (*roll_pitch, sign * yaw_torque))
+    delivered = allocator.matrix @ result.omega_rad_s**2
+    assert result.roll_pitch_fraction == 1.0
+    assert delivered[0] == pytest.approx(hover, rel=1e-9)
+    np.testing.assert_allclose(delivered[1:3], roll_pitch, atol=1e-9)
+    assert result.yaw_fraction < 1.0
+    assert np.sign(delivered[3]) in (0.0, sign)
+
+
+def test_attitude_is_kept_before_thrust(allocator: Allocator) -> None:
+    # Near full thrust a large roll torque cannot be had with the collective asked: thrust gives way.
+    hover = 0.95 * allocator.max_thrust_N
+    roll = 0.2 * hover * 0.1
+    result = allocator.allocate(hover, (roll, 0.0, 0.0))
+    delivered = allocator.matrix @ result.omega_rad_s**2
+    assert result.roll_pitch_fraction == 1.0
+    assert delivered[1] == pytest.approx(roll, rel=1e-9)
+    assert delivered[0] < hover
+
+
+# ------------------------------------------------------------------ gains from the YAML
+
+
+def _document(airframe_name: str) -> dict:
+    path = load_airframe(airframe_name).source_path
+    return yaml.safe_load(path.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("name", AIRFRAMES)
+def test_every_airframe_has_every_gain(name: str) -> None:
+    gains = airframe_gains(load_airframe(name)).as_dict()
+    assert list(gains) == list(GAIN_UNITS)
+    assert all(value > 0 for value in gains.values())
+
+
+def test_a_missing_gain_is_named_with_its_file() -> None:
+    document = _document("quad_x")
+    del document["controller"]["k_dphi"]
+    airframe = airframe_from_dict(document, origin="quad_x.yaml", source_path=Path("quad_x.yaml"))
+    with pytest.raises(GainError, match=r"quad_x\.yaml: controller\.k_dphi: missing"):
+        airframe_gains(airframe)
+
+
+def test_an_unknown_gain_key_is_refused() -> None:
+    section = dict(_document("quad_x")["controller"], k_pxx=1.0)
+    with pytest.raises(GainError, match=r"q\.yaml: controller\.k_pxx: unknown key"):
+        gains_from_section(section, "q.yaml")
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), "fast", True])
+def test_a_gain_must_be_a_positive_number(value) -> None:
+    section = dict(_document("quad_x")["controller"], b_py=value)
+    with pytest.raises(GainError, match=r"controller\.b_py"):
+        gains_from_section(section, "q.yaml")
+
+
+def test_a_controller_section_that_is_not_a_mapping_is_refused() -> None:
+    document = _document("quad_x")
+    document["controller"] = [1, 2]
+    with pytest.raises(AirframeError, match="controller: expected a mapping"):
+        airframe_from_dict(document, origin="quad_x.yaml")
+
+
+# ------------------------------------------------------------------ closed loop, offline
+
+
+def _fly(airframe, setpoints, duration, **options):
+    return simulate_flight(
+        airframe, setpoints=setpoints, duration_s=duration, rng=np.random.default_rng(3), **options
+    )
+
+
+@pytest.mark.parametrize("name", AIRFRAMES)
+def test_every_airframe_takes_off_and_hovers_within_2_cm(name: str) -> None:
+    log = _fly(load_airframe(name), [(0.0, 0.0, 0.0, 1.0, 0.0)], 8.0, noise=False)
+    hold = log.t >= 6.0
+    error = np.sqrt(log.columns["x"] ** 2 + log.columns["y"] ** 2 + (log.columns["z"] - 1.0) ** 2)
+    assert error[hold].max() < 0.02
+
+
+@pytest.mark.parametrize("name", AIRFRAMES)
+@pytest.mark.parametrize("yaw", [0.0, 2.0])
+def test_every_airframe_settles_a_1_m_step_within_5_s(name: str, yaw: float) -> None:
+    # The step is along world x whatever the heading: the law works in the heading frame.
+    setpoints = [(0.0, 0.0, 0.0, 1.0, yaw), (4.0, 1.0, 0.0, 1.0, yaw)]
+    log = _fly(load_airframe(name), setpoints, 10.0, initial_position_m=(0.0, 0.0, 1.0), initial_yaw_rad=yaw)
+    after = log.t >= 4.0
+    x = log.columns["x"][after]
+    t = log.t[after] - 4.0
+    assert x.max() - 1.0 < 0.20
+    outside = np.nonzero(np.abs(x - 1.0) > 0.05)[0]
+    assert t[outside[-1]] < 5.0
+    assert np.abs(log.columns["y"][after]).max() < 0.05
+
+
+def test_the_x8_keeps_flying_when_rotor_3_stops(x8) -> None:
+    fault = {"id": "actuator_fault", "motor": 3, "effectiveness": 0.0, "t_fault_s": 3.0}
+    log = simulate_flight(
+        x8,
+        [*x8.effect_specs(), fault],
+        setpoints=[(0.0, 0.0, 0.0, 1.0, 0.0)],
+        duration_s=12.0,
+        rng=np.random.default_rng(4),
+        initial_position_m=(0.0, 0.0, 1.0),
+    )
+    after = log.t >= 3.0
+    assert log.columns["z"][after].min() > 0.6
+    assert np.hypot(log.columns["x"], log.columns["y"])[after].max() < 1.5
+    assert np.abs(log.columns["z"][log.t >= 10.0] - 1.0).max() < 0.05
+    assert np.abs(log.columns["roll"][after]).max() < 0.4
+
+
+def test_the_closed_loop_is_deterministic_given_the_generator(x8) -> None:
+    setpoints = [(0.0, 0.0, 0.0, 1.0, 0.0), (1.0, 0.5, 0.0, 1.0, 0.0)]
+    first = _fly(x8, setpoints, 2.0)
+    second = _fly(x8, setpoints, 2.0)
+    for name, column in first.columns.items():
+        np.testing.assert_array_equal(column, second.columns[name], err_msg=name)

@@ -1,0 +1,497 @@
+"""Simulator and controller nodes: message helpers (no DDS), then the closed loop over real ROS 2.
+
+The ROS tests start the executables as a user would (``multirotor node NAME --ros-args ...``) in the
+session's isolated domain and talk to them only through topics and parameter services. Most of them
+share one vehicle flying at real_time_factor 0 in lockstep with a ``use_sim_time`` controller, so
+that their numbers do not depend on how loaded the machine is; times below are simulated seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+from rclpy.qos import qos_profile_sensor_data
+from ros_harness import NodeProcess, Recorder, RosProbe
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState, Range
+
+from multirotor_ros.model.state import make_state
+from multirotor_ros.nodes.common import (
+    ParameterSpec,
+    Refusal,
+    RefusalCounter,
+    check_parameters,
+    odometry_message,
+    rotor_speeds_from_joint_state,
+    setpoint_from_pose,
+    stamp_from_ns,
+    stamp_to_ns,
+    state_from_odometry,
+)
+
+# ------------------------------------------------------------------ helpers without DDS
+
+
+def joint_state(names, speeds, stamp_ns=0) -> JointState:
+    message = JointState()
+    message.header.stamp = stamp_from_ns(stamp_ns)
+    message.name = list(names)
+    message.velocity = [float(v) for v in speeds]
+    return message
+
+
+ROTORS4 = ["rotor_1", "rotor_2", "rotor_3", "rotor_4"]
+
+
+def test_rotor_speeds_are_taken_in_any_name_order() -> None:
+    result = rotor_speeds_from_joint_state(
+        joint_state(["rotor_3", "rotor_1", "rotor_4", "rotor_2"], [3, 1, 4, 2], 7), 4, 100.0
+    )
+    np.testing.assert_array_equal(result.speeds_rad_s, [1, 2, 3, 4])
+    assert result.stamp_ns == 7
+
+
+@pytest.mark.parametrize(
+    ("names", "speeds", "reason"),
+    [
+        (ROTORS4[:3], [1, 2, 3], "wrong rotor count"),
+        (ROTORS4, [1, 2, 3], "wrong rotor count"),
+        (["rotor_1", "rotor_2", "rotor_3", "rotor_5"], [1, 2, 3, 4], "unknown rotor name"),
+        (["rotor_1", "rotor_2", "rotor_3", "motor_4"], [1, 2, 3, 4], "unknown rotor name"),
+        (["rotor_1", "rotor_2", "rotor_3", "rotor_04"], [1, 2, 3, 4], "unknown rotor name"),
+        (["rotor_1", "rotor_1", "rotor_3", "rotor_4"], [1, 2, 3, 4], "duplicate rotor name"),
+        (ROTORS4, [1, math.nan, 3, 4], "non-finite speed"),
+        (ROTORS4, [1, 2, math.inf, 4], "non-finite speed"),
+        (ROTORS4, [1, 2, 3, -0.5], "negative speed"),
+        (ROTORS4, [1, 2, 3, 5000.0], "oversized speed"),
+    ],
+)
+def test_bad_rotor_speed_messages_are_refused_with_a_reason(names, speeds, reason) -> None:
+    result = rotor_speeds_from_joint_state(joint_state(names, speeds), 4, 1000.0)
+    assert isinstance(result, Refusal)
+    assert result.reason == reason
+    assert result.detail
+
+
+def test_odometry_has_the_pose_in_world_and_the_twist_in_body_axes() -> None:
+    # Yawed +90 deg and flying north: forward in the body, i.e. +x of FLU.
+    x = make_state(4, position_m=(1, 2, 3), velocity_m_s=(0, 2, 0), euler_rad=(0, 0, math.pi / 2))[0]
+    message = odometry_message(x, stamp_from_ns(1_500_000_000))
+    assert (message.header.frame_id, message.child_frame_id) == ("odom", "base_link")
+    assert message.twist.twist.linear.x == pytest.approx(2.0)
+    assert message.twist.twist.linear.y == pytest.approx(0.0, abs=1e-12)
+    assert message.pose.pose.orientation.z == pytest.approx(math.sqrt(0.5))
+    p, v, q, _ = state_from_odometry(message)
+    np.testing.assert_allclose(p, [1, 2, 3])
+    np.testing.assert_allclose(v, [0, 2, 0], atol=1e-12)
+    assert stamp_to_ns(message.header.stamp) == 1_500_000_000
+
+
+def test_odometry_that_is_not_finite_or_not_a_rotation_is_refused() -> None:
+    message = odometry_message(make_state(4)[0], Time())
+    message.pose.pose.position.x = math.nan
+    assert state_from_odometry(message).reason == "non-finite odometry"
+    message = odometry_message(make_state(4)[0], Time())
+    message.pose.pose.orientation.w = 2.0
+    assert state_from_odometry(message).reason == "invalid orientation"
+
+
+def test_a_setpoint_gives_position_and_yaw() -> None:
+    message = PoseStamped()
+    message.pose.position.x = 1.0
+    message.pose.orientation.z, message.pose.orientation.w = math.sin(0.25), math.cos(0.25)
+    position, yaw = setpoint_from_pose(message)
+    assert position[0] == 1.0 and yaw == pytest.approx(0.5)
+    message.pose.orientation.w = 0.0
+    message.pose.orientation.z = 0.0
+    assert setpoint_from_pose(message)[1] == 0.0  # an unset orientation means yaw 0
+    message.pose.position.y = math.inf
+    assert setpoint_from_pose(message).reason == "non-finite setpoint"
+
+
+class _Logger:
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def warning(self, text: str) -> None:
+        self.lines.append(text)
+
+
+def test_refusals_are_counted_logged_once_per_reason_then_summarised() -> None:
+    now = [0.0]
+    logger = _Logger()
+    counter = RefusalCounter(logger, "commands", summary_period_s=10.0, clock=lambda: now[0])
+    for _ in range(5):
+        counter.refuse("negative speed", "rotor_1 = -1")
+    counter.refuse("non-finite speed", "rotor_2 = nan")
+    assert counter.counts == {"negative speed": 5, "non-finite speed": 1}
+    assert len(logger.lines) == 2
+    now[0] = 11.0
+    counter.refuse("negative speed", "rotor_1 = -1")
+    assert len(logger.lines) == 3
+    assert "5 more" in logger.lines[-1] and "total 7" in logger.lines[-1]
+
+
+def test_parameter_checks_give_reasons() -> None:
+    from rclpy.parameter import Parameter
+
+    specs = {
+        s.name: s
+        for s in [
+            ParameterSpec("gain", 1.0, "a gain", "1/s", 0.0, 10.0, low_exclusive=True),
+            ParameterSpec("motor", 0, "a rotor", "-", 0, 8),
+            ParameterSpec("fixed", 1.0, "read-only", read_only=True),
+        ]
+    }
+
+    def check(name, value):
+        return check_parameters(specs, [Parameter(name, value=value)])
+
+    assert check("gain", 2.0).successful
+    assert check("gain", 3).successful  # an integer is a fine value for a double
+    assert "must be finite" in check("gain", math.nan).reason
+    assert "must be > 0" in check("gain", 0.0).reason
+    assert "must be <= 10" in check("gain", 11.0).reason
+    assert "must be a float" in check("gain", "fast").reason
+    assert "must be <= 8" in check("motor", 9).reason
+    assert "read-only" in check("fixed", 2.0).reason
+    assert check("use_sim_time", True).successful
+
+
+# ------------------------------------------------------------------ the closed loop over ROS 2
+
+STARTUP_TIMEOUT_S = 120.0
+
+
+def stamp_s(message) -> float:
+    return stamp_to_ns(message.header.stamp) * 1e-9
+
+
+def position(message: Odometry) -> np.ndarray:
+    p = message.pose.pose.position
+    return np.array([p.x, p.y, p.z])
+
+
+def setpoint_message(x: float, y: float, z: float, yaw: float = 0.0) -> PoseStamped:
+    message = PoseStamped()
+    message.header.frame_id = "odom"
+    message.pose.position.x, message.pose.position.y, message.pose.position.z = x, y, z
+    message.pose.orientation.z, message.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    return message
+
+
+@dataclass
+class Vehicle:
+    """A simulator and a controller under one namespace, with the probe's view of them."""
+
+    namespace: str
+    simulator: NodeProcess
+    controller: NodeProcess
+    odom: Recorder
+    probe: RosProbe
+
+    def __post_init__(self) -> None:
+        self.setpoints = self.probe.publisher(f"{self.namespace}/setpoint", PoseStamped)
+
+    def latest(self) -> Odometry:
+        # The first call waits for the nodes to start: several processes importing numba on a busy machine.
+        return self.odom.wait_for(count=1, timeout=STARTUP_TIMEOUT_S)[-1]
+
+    def fly_to(self, x: float, y: float, z: float, yaw: float = 0.0) -> float:
+        """Send a setpoint; return the simulated time it was sent at."""
+        self.probe.wait_for_subscribers(self.setpoints, timeout=STARTUP_TIMEOUT_S)
+        sent_at = stamp_s(self.latest())
+        self.setpoints.publish(setpoint_message(x, y, z, yaw))
+        return sent_at
+
+    def settle_at(self, x: float, y: float, z: float, tolerance: float = 0.02) -> float:
+        """Fly to a point and wait until the vehicle is there (at once if it already is); return the time."""
+        sent = self.fly_to(x, y, z)
+
+        def there(message: Odometry) -> bool:
+            return stamp_s(message) > sent and np.linalg.norm(position(message) - (x, y, z)) < tolerance
+
+        return stamp_s(self.odom.wait_for(there, timeout=120.0)[-1])
+
+    def until(self, t_s: float, timeout: float = 60.0) -> list[Odometry]:
+        """Wait until the odometry reaches simulated time ``t_s``; all odometry received so far."""
+        self.odom.wait_for(lambda m: stamp_s(m) >= t_s, timeout=timeout)
+        return self.odom.messages
+
+    def between(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
+        """(times, positions) of the odometry in [t0, t1] of simulated time."""
+        messages = [m for m in self.until(t1) if t0 <= stamp_s(m) <= t1]
+        return np.array([stamp_s(m) for m in messages]), np.array([position(m) for m in messages])
+
+
+def start_vehicle(
+    probe: RosProbe, directory: Path, namespace: str, simulator: dict, controller: dict, sim_time: bool
+) -> Vehicle:
+    """Start a simulator and a controller under ``namespace``.
+
+    With ``sim_time`` the controller follows the simulator's clock (``<namespace>/clock``, remapped to
+    where rclpy's time source listens).
+    """
+    odom = probe.subscribe(f"{namespace}/odom", Odometry)
+    name = namespace.strip("/")
+    sim = NodeProcess(
+        "simulator",
+        directory / f"{name}-simulator.log",
+        namespace=namespace,
+        parameters={**simulator, "publish_clock": sim_time},
+    )
+    ctrl = NodeProcess(
+        "controller",
+        directory / f"{name}-controller.log",
+        namespace=namespace,
+        parameters={**controller, "use_sim_time": sim_time},
+        remaps={"/clock": f"{namespace}/clock"} if sim_time else None,
+    )
+    return Vehicle(namespace, sim, ctrl, odom, probe)
+
+
+def stop_vehicles(*vehicles: Vehicle) -> None:
+    """SIGINT every node; each must exit with status 0 (failures reported together, with their logs)."""
+    failures = []
+    for vehicle in vehicles:
+        for process in (vehicle.controller, vehicle.simulator):
+            try:
+                process.stop()
+            except AssertionError as error:
+                failures.append(str(error))
+    assert not failures, "\n\n".join(failures)
+
+
+@pytest.fixture(scope="module")
+def probe() -> Iterator[RosProbe]:
+    probe = RosProbe()
+    yield probe
+    probe.close()
+
+
+@pytest.fixture(scope="module")
+def vehicle(probe: RosProbe, tmp_path_factory) -> Iterator[Vehicle]:
+    """An X8 at real_time_factor 0, lockstep: the simulator publishes the clock, the controller follows it."""
+    vehicle = start_vehicle(
+        probe,
+        tmp_path_factory.mktemp("closed_loop"),
+        "/t1",
+        simulator={"real_time_factor": 0.0, "command_timeout_s": 1.0, "seed": 3},
+        controller={},
+        sim_time=True,
+    )
+    yield vehicle
+    stop_vehicles(vehicle)
+
+
+@pytest.mark.ros
+def test_hover_holds_within_2_cm(vehicle: Vehicle) -> None:
+    sent = vehicle.fly_to(0.0, 0.0, 1.0)
+    _, positions = vehicle.between(sent + 6.0, sent + 8.0)
+    error = np.linalg.norm(positions - [0.0, 0.0, 1.0], axis=1)
+    assert error.max() < 0.02, f"hover error up to {error.max():.3f} m"
+
+
+BAD_COMMANDS = {
+    "non-finite speed": ([f"rotor_{k}" for k in range(1, 9)], [300.0] * 7 + [math.nan]),
+    "negative speed": ([f"rotor_{k}" for k in range(1, 9)], [300.0] * 7 + [-1.0]),
+    "oversized speed": ([f"rotor_{k}" for k in range(1, 9)], [300.0] * 7 + [1e5]),
+    "wrong rotor count": ([f"rotor_{k}" for k in range(1, 5)], [300.0] * 4),
+    "unknown rotor name": ([f"rotor_{k}" for k in range(1, 8)] + ["rotor_9"], [300.0] * 8),
+}
+
+
+@pytest.mark.ros
+def test_bad_commands_are_refused_counted_and_logged_once_while_the_vehicle_flies_on(
+    vehicle: Vehicle, probe: RosProbe
+) -> None:
+    vehicle.settle_at(0.0, 0.0, 1.0)
+    publisher = probe.publisher("/t1/motor_speed_cmd", JointState)
+    probe.wait_for_subscribers(publisher, timeout=STARTUP_TIMEOUT_S)
+    for _ in range(3):
+        for names, speeds in BAD_COMMANDS.values():
+            publisher.publish(joint_state(names, speeds, stamp_ns=stamp_to_ns(vehicle.latest().header.stamp)))
+        # A valid command stamped before the newest one is out of order.
+        publisher.publish(joint_state([f"rotor_{k}" for k in range(1, 9)], [0.0] * 8, stamp_ns=1))
+    now = stamp_s(vehicle.latest())
+    _, positions = vehicle.between(now, now + 2.0)
+    assert np.all(np.isfinite(positions))
+    assert np.linalg.norm(positions - [0.0, 0.0, 1.0], axis=1).max() < 0.05
+    log = vehicle.simulator.log_text()
+    for reason in [*BAD_COMMANDS, "out-of-order stamp"]:
+        assert log.count(f"refused motor_speed_cmd: {reason}:") == 1, reason
+    vehicle.simulator.assert_running()
+
+
+@pytest.mark.ros
+def test_a_1_m_step_in_x_settles_within_5_s_with_less_than_20_percent_overshoot(vehicle: Vehicle) -> None:
+    vehicle.settle_at(0.0, 0.0, 1.0)
+    sent = vehicle.fly_to(1.0, 0.0, 1.0)
+    times, positions = vehicle.between(sent, sent + 7.0)
+    x = positions[:, 0]
+    assert x.max() - 1.0 < 0.20, f"overshoot {x.max() - 1.0:.3f} m"
+    outside = np.nonzero(np.abs(x - 1.0) > 0.05)[0]
+    assert times[outside[-1]] - sent < 5.0, f"outside 5 % until {times[outside[-1]] - sent:.2f} s"
+    assert np.abs(positions[:, 2] - 1.0).max() < 0.1
+
+
+@pytest.mark.ros
+def test_the_controller_follows_simulated_time(vehicle: Vehicle, probe: RosProbe) -> None:
+    commands = probe.subscribe("/t1/motor_speed_cmd", JointState)
+    clock = probe.subscribe("/t1/clock", Clock, qos_profile_sensor_data)
+    received = commands.wait_for(count=100, timeout=60.0)
+    latest_clock = clock.wait_for(count=1)[-1].clock
+    stamps = np.array([stamp_s(m) for m in received])
+    # Simulated time starts at 0, so the stamps are seconds since the simulator started, not the epoch...
+    assert stamps.max() < 1e6
+    assert stamp_to_ns(latest_clock) * 1e-9 - stamps.max() < 1.0
+    # ...and the law runs at its rate_hz of simulated time (250 Hz), one command per period.
+    periods = np.diff(np.unique(stamps))
+    assert np.median(periods) == pytest.approx(0.004, abs=1e-6)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize(
+    ("node", "values", "reason"),
+    [
+        ("simulator", {"fault_motor": 9}, "fault_motor"),
+        ("simulator", {"fault_effectiveness": 1.5}, "fault_effectiveness"),
+        ("simulator", {"fault_effectiveness": math.nan}, "fault_effectiveness"),
+        ("simulator", {"physics_rate_hz": 500.0}, "read-only"),
+        ("controller", {"k_px": -1.0}, "k_px"),
+        ("controller", {"b_dphi": math.inf}, "b_dphi"),
+        ("controller", {"k_dz": "fast"}, "Wrong parameter type"),
+        ("controller", {"rate_hz": 100.0}, "read-only"),
+    ],
+)
+def test_invalid_parameter_values_are_rejected_with_a_reason(
+    vehicle: Vehicle, probe: RosProbe, node, values, reason
+) -> None:
+    result = probe.set_parameters(f"/t1/{node}", values)
+    (outcome,) = result.values()
+    assert not outcome.successful
+    assert reason in outcome.reason
+
+
+@pytest.mark.ros
+def test_a_gain_can_be_changed_in_flight(vehicle: Vehicle, probe: RosProbe) -> None:
+    (outcome,) = probe.set_parameters("/t1/controller", {"k_dz": 6.5}).values()
+    assert outcome.successful
+    assert probe.get_parameters("/t1/controller", ["k_dz"]) == {"k_dz": 6.5}
+
+
+@pytest.mark.ros
+def test_the_x8_keeps_flying_after_rotor_3_stops(vehicle: Vehicle, probe: RosProbe) -> None:
+    faults = probe.subscribe("/t1/injected_faults", DiagnosticArray)
+    vehicle.settle_at(0.0, 0.0, 1.0)
+    (outcome,) = probe.set_parameters("/t1/simulator", {"fault_motor": 3}).values()
+    assert outcome.successful
+    injected = stamp_s(vehicle.latest())
+    truth = faults.wait_for(lambda m: m.status[2].values[0].value == "0", timeout=30.0)[-1]
+    assert [s.name for s in truth.status] == [f"rotor_{k}" for k in range(1, 9)]
+    assert [s.values[0].value for s in truth.status] == ["1", "1", "0", "1", "1", "1", "1", "1"]
+    _, positions = vehicle.between(injected, injected + 8.0)
+    assert positions[:, 2].min() > 0.6
+    assert np.hypot(positions[:, 0], positions[:, 1]).max() < 1.5
+    assert abs(positions[-1, 2] - 1.0) < 0.05
+    (outcome,) = probe.set_parameters("/t1/simulator", {"fault_motor": 0}).values()
+    assert outcome.successful
+
+
+@pytest.mark.ros
+def test_two_namespaced_vehicles_fly_in_one_graph(probe: RosProbe, tmp_path) -> None:
+    # Each vehicle in lockstep with its own clock (<ns>/clock, remapped for its controller): two vehicles
+    # never share a time line, and the result does not depend on how loaded the machine is.
+    vehicles = [
+        start_vehicle(
+            probe,
+            tmp_path,
+            namespace,
+            simulator={"real_time_factor": 0.0, "initial_x": x, "airframe": airframe},
+            controller={"airframe": airframe},
+            sim_time=True,
+        )
+        for namespace, x, airframe in (("/uav1", 0.0, "x8_octorotor"), ("/uav2", 3.0, "quad_x"))
+    ]
+    try:
+        targets = [(0.0, 0.5, 1.0), (3.0, 0.0, 1.5)]
+        sent = [vehicle.fly_to(*target) for vehicle, target in zip(vehicles, targets, strict=True)]
+        for vehicle, target, start in zip(vehicles, targets, sent, strict=True):
+            _, positions = vehicle.between(start + 5.0, start + 6.0)
+            assert np.linalg.norm(positions - target, axis=1).max() < 0.05, vehicle.namespace
+    finally:
+        stop_vehicles(*vehicles)
+
+
+@pytest.mark.ros
+def test_a_lone_simulator_publishes_its_sensors_and_stops_rotors_without_commands(
+    probe: RosProbe, tmp_path
+) -> None:
+    imu = probe.subscribe("/solo/imu", Imu, qos_profile_sensor_data)
+    ranges = probe.subscribe("/solo/range", Range, qos_profile_sensor_data)
+    speeds = probe.subscribe("/solo/motor_speeds", JointState)
+    simulator = NodeProcess(
+        "simulator",
+        tmp_path / "solo.log",
+        namespace="/solo",
+        parameters={"command_timeout_s": 0.3, "airframe": "quad_x"},
+    )
+    try:
+        reading = imu.wait_for(count=20, timeout=STARTUP_TIMEOUT_S)[-1]
+        assert reading.linear_acceleration.z == pytest.approx(9.81, abs=0.1)  # resting: 1 g up
+        assert ranges.wait_for(count=1)[-1].range == pytest.approx(0.09)  # 0.10 m mount, 3 cm steps
+        publisher = probe.publisher("/solo/motor_speed_cmd", JointState)
+        probe.wait_for_subscribers(publisher)
+        publisher.publish(joint_state([f"rotor_{k}" for k in range(1, 5)], [200.0] * 4))
+        speeds.wait_for(lambda m: min(m.velocity) > 150.0, timeout=10.0)
+        speeds.clear()
+        speeds.wait_for(lambda m: max(m.velocity) < 20.0, timeout=10.0)
+        assert simulator.log_text().count("no motor command for 0.30 s") == 1
+    finally:
+        simulator.stop()
+
+
+def test_a_node_built_with_a_bad_parameter_ends_with_status_2_and_the_reason(capsys) -> None:
+    from multirotor_ros.nodes.common import run_node
+    from multirotor_ros.nodes.simulator import SimulatorNode
+
+    assert run_node(SimulatorNode, ["simulator", "--ros-args", "-p", "airframe:=no_such_frame"]) == 2
+    assert "simulator: unknown airframe 'no_such_frame'" in capsys.readouterr().err
+    assert run_node(SimulatorNode, ["simulator", "--ros-args", "-p", "physics_rate_hz:=-5.0"]) == 2
+    assert "physics_rate_hz out of range" in capsys.readouterr().err
+
+
+def test_the_launch_file_starts_package_executables_with_parameters_they_declare() -> None:
+    # launch_ros is not on PyPI: the file is read as data here (a real `ros2 launch` checks it elsewhere).
+    import ast
+
+    from multirotor_ros.cli.node import NODE_EXECUTABLES
+    from multirotor_ros.control.gains import GAIN_UNITS
+    from multirotor_ros.nodes.controller import controller_parameters
+    from multirotor_ros.nodes.simulator import simulator_parameters
+
+    declared = {
+        "simulator": {s.name for s in simulator_parameters(8)} | {"airframe"},
+        "controller": {s.name for s in controller_parameters(dict.fromkeys(GAIN_UNITS, 1.0))} | {"airframe"},
+        "identifier": {"airframe"},
+    }
+    tree = ast.parse((Path(__file__).parent.parent / "launch" / "sim.launch.py").read_text(encoding="utf-8"))
+    started = {}
+    for call in ast.walk(tree):
+        if isinstance(call, ast.Call) and getattr(call.func, "id", None) == "Node":
+            keywords = {k.arg: k.value for k in call.keywords}
+            executable = ast.literal_eval(keywords["executable"])
+            (parameters,) = keywords["parameters"].elts
+            started[executable] = {ast.literal_eval(key) for key in parameters.keys}
+    assert set(started) == {"simulator", "controller", "identifier"} <= set(NODE_EXECUTABLES)
+    for executable, names in started.items():
+        assert names - {"use_sim_time"} <= declared[executable], executable
