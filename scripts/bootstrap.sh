@@ -164,5 +164,11 @@ say "creating the ament layout in $VENV (share/ament_index, share/multirotor_ros
 say "checking that rclpy and multirotor_ros import"
 "$VENV/bin/python" -c 'import rclpy, multirotor_ros' >>"$LOG" 2>&1 || fail "the new venv cannot import rclpy"
 
+# numba compiles the physics kernel on first use (15 s of CPU) and caches it beside the module; doing it
+# here keeps that pause out of the first node start-up and the first test that steps a vehicle.
+say "compiling the physics kernel once (numba cache)"
+"$VENV/bin/python" -c 'from multirotor_ros.model.compiled import warm_up; warm_up()' >>"$LOG" 2>&1 \
+    || fail "compiling the physics kernel failed"
+
 stamp_key >"$STAMP"
 say "done: $VENV is ready"

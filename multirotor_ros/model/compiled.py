@@ -472,3 +472,17 @@ class CompiledStepper:
             when = t + (failed[vehicle] + 1) * dt
             raise FloatingPointError(f"the state of vehicle {vehicle} became non-finite at t = {when:.6f} s")
         return x_next
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel once: serial, parallel and the derivative."""
+    from multirotor_ros.model import state as S
+    from multirotor_ros.model.airframe import load_airframe
+
+    model = Model(load_airframe("x8_octorotor"))
+    for batch in (1, PARALLEL_MIN_BATCH):
+        stepper = CompiledStepper(model, batch)
+        x = S.make_state(model.n_rotors, batch=batch, position_m=(0.0, 0.0, 1.0))
+        u = np.full((batch, model.n_rotors), model.hover_speed_rad_s())
+        stepper.advance(0.0, x, u, 1e-3, 1, 0.0)
+        stepper.derivative(0.0, x, u)
