@@ -2,7 +2,7 @@
 
 Pure Python (pymavlink, numpy), no rclpy: :mod:`multirotor_ros.nodes.mavlink_bridge` is the ROS
 wrapper. Frames are NED / FRD on the wire and ENU / FLU inside; every conversion goes through
-:mod:`multirotor_ros.frames` (:func:`.messages.ned_view` is the one place that applies it to a state).
+:mod:`multirotor_ros.frames` (:func:`.messages.ned_view` applies it to a whole state).
 
 Modules
     :mod:`.wire` codec and sockets, refusal counts; :mod:`.signing` MAVLink 2 signing policy;
@@ -38,11 +38,15 @@ Architecture: who owns the physics
         ``imu`` and ``motor_speeds`` (as interfaces.md lists) and forwards: every ``imu`` message
         becomes a HIL_SENSOR (PX4) or answers a waiting frame (ArduPilot), and actuator messages become
         ``motor_speed_cmd``. Lockstep is not possible here: PX4 follows the simulator's time stamps,
-        ArduPilot is answered at the simulator's pace. Ground-station-only use (``flight_stack: none``)
-        is this mode: telemetry from the topics, setpoints to ``setpoint``.
+        ArduPilot is answered at the simulator's pace, and the flight stack's IMU rate is the
+        simulator's ``sensors.imu_rate_hz`` (100 Hz by default; PX4 wants 250 Hz). Use it to fly a
+        flight stack against a simulator that other nodes also drive; prefer internal physics
+        otherwise. Ground-station-only use (``flight_stack: none``) is this mode: telemetry from the
+        topics, setpoints to ``setpoint``.
 
     The ground-station link works the same in both modes and runs on the wall clock. The per-step
-    cost outside the physics is one pymavlink parse and three message packs (HIL_SENSOR every step,
-    HIL_GPS and HIL_STATE_QUATERNION when due), all in the loop thread with no ROS on the path; ROS
-    publishing happens at ``publish_rate_hz``, not per step (bench/bench_mavlink.py measures both).
+    cost outside the physics is one pymavlink parse and up to three message packs (HIL_SENSOR every
+    step, HIL_GPS and HIL_STATE_QUATERNION when due) written in one send, all in the loop thread; ROS
+    sees a step only through publishing (odom at ``publish_rate_hz``, the IMU reading of the step), never
+    waits on it. bench/bench_mavlink.py measures the bridge's CPU time per step against the physics'.
 """

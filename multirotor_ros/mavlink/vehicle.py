@@ -1,0 +1,134 @@
+"""The vehicle as the MAVLink side sees it: one snapshot type, and the physics the bridge may own.
+
+:class:`VehicleState` is what every outgoing MAVLink message is built from, whichever way the state
+arrived: stepped by the bridge's own physics (lockstep), or read from the simulator node's ``odom``,
+``imu`` and ``motor_speeds`` topics. World ENU and body FLU, SI units, like the rest of the package.
+
+:class:`Physics` is what the bridge needs from a simulation core to drive it one step per actuator
+message; :mod:`multirotor_ros.mavlink.bridge` documents when it owns one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from multirotor_ros.model.rotation import FloatArray
+
+
+@dataclass(frozen=True)
+class VehicleState:
+    """One instant of the simulated vehicle."""
+
+    t_s: float  # [s] simulated time
+    p_WB_W: FloatArray  # [m] position, world ENU (origin = home)
+    v_WB_W: FloatArray  # [m/s] velocity, world ENU
+    q_WB: FloatArray  # attitude (w, x, y, z), body FLU -> world ENU
+    w_WB_B: FloatArray  # [rad/s] true body rate, FLU
+    rotor_speeds_rad_s: FloatArray  # [rad/s] measured rotor speeds, rotor order 1..N
+    imu_specific_force_B: FloatArray  # [m/s^2] what the accelerometer reads (a - g), FLU
+    imu_w_WB_B: FloatArray  # [rad/s] what the gyroscope reads, FLU
+
+    @staticmethod
+    def at_rest(n_rotors: int, gravity_m_s2: float, t_s: float = 0.0) -> VehicleState:
+        """Level on the ground at home: the accelerometer reads +g up."""
+        zero = np.zeros(3)
+        return VehicleState(
+            t_s,
+            zero,
+            zero,
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            zero,
+            np.zeros(n_rotors),
+            np.array([0.0, 0.0, gravity_m_s2]),
+            zero,
+        )
+
+
+class Physics(Protocol):
+    """A simulation core the bridge steps itself (lockstep); see :mod:`multirotor_ros.mavlink.bridge`."""
+
+    @property
+    def n_rotors(self) -> int:
+        """Rotor count of the simulated airframe."""
+        ...
+
+    @property
+    def state(self) -> VehicleState:
+        """The current state."""
+        ...
+
+    def step(self, rotor_speed_cmd_rad_s: FloatArray, dt_s: float) -> VehicleState:
+        """Advance by ``dt_s`` with the rotor command held; return the new state."""
+        ...
+
+    def reset(self) -> VehicleState:
+        """Back to the initial state at t = 0 (a flight stack restarted)."""
+        ...
+
+
+class Simulation:
+    """The vehicle the flight-stack links talk to.
+
+    With ``physics`` (internal mode) the links step it themselves and every new state goes to
+    ``on_state`` (the node publishes it). Without (external mode) the state is whatever the bridge
+    was last given by :meth:`update` (the node's ``odom``/``imu``/``motor_speeds`` subscriptions).
+    Either way a rotor command goes to ``on_command`` (the node publishes ``motor_speed_cmd``).
+    """
+
+    def __init__(
+        self,
+        n_rotors: int,
+        gravity_m_s2: float,
+        physics: Physics | None,
+        on_command: Callable[[FloatArray, float], None],
+        on_state: Callable[[VehicleState], None],
+    ):
+        if physics is not None and physics.n_rotors != n_rotors:
+            raise ValueError(f"physics has {physics.n_rotors} rotors, the airframe {n_rotors}")
+        self.n_rotors = n_rotors
+        self.physics = physics
+        self._on_command = on_command
+        self._on_state = on_state
+        self.command_rad_s: FloatArray = np.zeros(n_rotors)
+        self.latest: VehicleState = (
+            physics.state if physics is not None else VehicleState.at_rest(n_rotors, gravity_m_s2)
+        )
+        # External mode knows nothing until the simulator node speaks: no telemetry about a guess.
+        self.known = physics is not None
+        self.steps = 0
+
+    @property
+    def internal(self) -> bool:
+        """Whether the bridge owns the physics."""
+        return self.physics is not None
+
+    def command(self, speeds_rad_s: FloatArray) -> None:
+        """Hold a new rotor command and pass it on."""
+        self.command_rad_s = speeds_rad_s
+        self._on_command(speeds_rad_s, self.latest.t_s)
+
+    def step(self, dt_s: float) -> VehicleState:
+        """Advance the owned physics by ``dt_s`` with the held command."""
+        assert self.physics is not None, "step() needs the bridge's own physics"
+        state = self.physics.step(self.command_rad_s, dt_s)
+        self.latest = state
+        self.steps += 1
+        self._on_state(state)
+        return state
+
+    def reset(self) -> VehicleState:
+        """Back to the initial state (internal) and no command."""
+        self.command_rad_s = np.zeros(self.n_rotors)
+        if self.physics is not None:
+            self.latest = self.physics.reset()
+            self._on_state(self.latest)
+        return self.latest
+
+    def update(self, state: VehicleState) -> None:
+        """A new externally simulated state (external mode)."""
+        self.latest = state
+        self.known = True

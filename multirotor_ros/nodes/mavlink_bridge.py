@@ -1,0 +1,455 @@
+"""ROS 2 node ``mavlink_bridge``: the ROS side of :mod:`multirotor_ros.mavlink`.
+
+Connects the graph to a flight stack (PX4 SITL over TCP 4560, ArduPilot SITL over UDP 9002) and to a
+ground station (UDP, 127.0.0.1:14550 by default). The MAVLink work runs in a thread of its own
+(:class:`~multirotor_ros.mavlink.bridge.MavlinkBridge`); the executor only serves subscriptions and
+parameters. Which side owns the physics, and why, is described in :mod:`multirotor_ros.mavlink`:
+
+- ``internal_physics: true`` (default): the node steps its own VehicleSimulator in lockstep with the
+  flight stack and publishes ``odom`` (at ``publish_rate_hz``), ``imu`` (the IMU the flight stack reads:
+  one per PX4 step, one per physics step for ArduPilot), ``motor_speeds`` (the ESC rate of the
+  airframe's sensors) and, with ``publish_clock``, ``clock`` (every step); stamps are simulated time.
+- ``internal_physics: false``: subscribes ``odom``, ``imu`` and ``motor_speeds`` of a simulator node and
+  forwards them. ``flight_stack: none`` (ground station only) requires this mode.
+
+Always: ``motor_speed_cmd`` (flight-stack actuator outputs through the motor map) and ``setpoint``
+(SET_POSITION_TARGET_LOCAL_NED from the ground station, world ENU). Refused input, on any link or
+topic, is counted per reason and logged once per reason, then in throttled summaries.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+
+from multirotor_ros.mavlink.actuators import RotorChannels
+from multirotor_ros.mavlink.ardupilot import DEFAULT_PORT as ARDUPILOT_PORT
+from multirotor_ros.mavlink.ardupilot import ArduPilotConfig
+from multirotor_ros.mavlink.bridge import (
+    FLIGHT_STACKS,
+    BridgeConfig,
+    BridgeOutputs,
+    BridgeThread,
+    MavlinkBridge,
+)
+from multirotor_ros.mavlink.gcs import GroundStationConfig, Setpoint
+from multirotor_ros.mavlink.physics import SimulatorPhysics
+from multirotor_ros.mavlink.px4 import DEFAULT_PORT as PX4_PORT
+from multirotor_ros.mavlink.px4 import Px4Config
+from multirotor_ros.mavlink.sensors import Home
+from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
+from multirotor_ros.mavlink.vehicle import VehicleState
+from multirotor_ros.mavlink.wire import RefusalLog
+from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.rotation import FloatArray, euler_to_quat
+from multirotor_ros.nodes.common import (
+    ParameterSpec,
+    Refusal,
+    RefusalCounter,
+    check_parameters,
+    declare_parameters,
+    imu_message,
+    joint_state_from_rotor_speeds,
+    odometry_message,
+    pose_message,
+    rotor_speeds_from_joint_state,
+    run_node,
+    stamp_from_ns,
+    stamp_to_ns,
+    state_from_odometry,
+)
+
+NODE_NAME = "mavlink_bridge"
+CLOCK_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
+)  # as rclpy's time source subscribes
+
+_HOME = Home()
+PARAMETERS = (
+    ParameterSpec("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
+    ParameterSpec("flight_stack", "px4", "px4, ardupilot or none (ground station only)", read_only=True),
+    ParameterSpec(
+        "internal_physics",
+        True,
+        "step an own simulation core in lockstep (else forward the simulator node's odom/imu/motor_speeds)",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "flight_stack_address", "127.0.0.1", "address the flight-stack port binds to", read_only=True
+    ),
+    ParameterSpec(
+        "flight_stack_port",
+        0,
+        "TCP (PX4) or UDP (ArduPilot) port; 0 = 4560 or 9002",
+        "port",
+        0,
+        65535,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "lockstep_step_s",
+        0.004,
+        "PX4: simulated time per actuator message",
+        "s",
+        0.0001,
+        0.05,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "physics_rate_hz",
+        1000.0,
+        "integration rate of the own simulation core",
+        "Hz",
+        100.0,
+        10000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "publish_rate_hz", 250.0, "rate of odom in internal-physics mode", "Hz", 1.0, 1000.0, read_only=True
+    ),
+    ParameterSpec(
+        "publish_clock", False, "internal physics: publish simulated time on clock", read_only=True
+    ),
+    ParameterSpec(
+        "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
+    ),
+    ParameterSpec("sensor_noise", True, "internal physics: simulate sensor noise", read_only=True),
+    ParameterSpec(
+        "seed", 0, "internal physics: random seed of the sensor noise", "", 0, 2**31 - 1, read_only=True
+    ),
+    ParameterSpec(
+        "rotor_channels",
+        "",
+        "flight-stack output channel (1-based) of rotor 1..N, comma separated; "
+        "empty = channel k drives rotor k",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "pwm_min_us",
+        1000.0,
+        "ArduPilot pulse for no thrust on a normalized motor map",
+        "us",
+        500.0,
+        2500.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "pwm_max_us",
+        2000.0,
+        "ArduPilot pulse for full thrust on a normalized motor map",
+        "us",
+        500.0,
+        2500.0,
+        read_only=True,
+    ),
+    ParameterSpec("gps_rate_hz", 10.0, "PX4: HIL_GPS rate", "Hz", 5.0, 10.0, read_only=True),
+    ParameterSpec("gcs_enabled", True, "send telemetry to a ground station", read_only=True),
+    ParameterSpec("gcs_address", "127.0.0.1", "ground station address", read_only=True),
+    ParameterSpec("gcs_port", 14550, "ground station UDP port", "port", 1, 65535, read_only=True),
+    ParameterSpec(
+        "gcs_bind_port",
+        0,
+        "local UDP port of the ground-station link; 0 = any",
+        "port",
+        0,
+        65535,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "gcs_telemetry_rate_hz",
+        50.0,
+        "ATTITUDE and LOCAL_POSITION_NED rate",
+        "Hz",
+        1.0,
+        500.0,
+        read_only=True,
+    ),
+    ParameterSpec("system_id", 1, "MAVLink system id of the vehicle", "", 1, 255, read_only=True),
+    ParameterSpec(
+        "signing_key",
+        "",
+        "MAVLink 2 signing: 64 hex digits, or a passphrase whose SHA-256 is the key (as MAVProxy's "
+        "'signing key WORD', one word); when set, unsigned or badly signed commands are refused",
+        read_only=True,
+    ),
+    ParameterSpec(
+        "home_latitude_deg",
+        _HOME.latitude_deg,
+        "latitude of the odom origin (WGS-84)",
+        "deg",
+        -89.9,
+        89.9,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "home_longitude_deg",
+        _HOME.longitude_deg,
+        "longitude of the odom origin",
+        "deg",
+        -180.0,
+        180.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "home_altitude_m",
+        _HOME.altitude_m,
+        "altitude of the odom origin above mean sea level",
+        "m",
+        -400.0,
+        10000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "mag_declination_deg",
+        _HOME.mag_declination_deg,
+        "magnetic declination at home (east +)",
+        "deg",
+        -180.0,
+        180.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "mag_inclination_deg",
+        _HOME.mag_inclination_deg,
+        "magnetic inclination at home (down +)",
+        "deg",
+        -90.0,
+        90.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "mag_strength_gauss",
+        _HOME.mag_strength_gauss,
+        "magnetic field strength at home",
+        "gauss",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+)
+_SPECS = {spec.name: spec for spec in PARAMETERS}
+
+
+def parse_rotor_channels(text: str) -> list[int] | None:
+    """``"1,4,2,3"`` -> [1, 4, 2, 3]; '' -> None (the default order)."""
+    if not text.strip():
+        return None
+    try:
+        return [int(part) for part in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise ValueError(
+            f"rotor_channels {text!r}: expected comma-separated channel numbers such as 1,4,2,3"
+        ) from None
+
+
+class MavlinkBridgeNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs: Any):
+        super().__init__(NODE_NAME, **kwargs)
+        p = declare_parameters(self, PARAMETERS)
+        self.add_on_set_parameters_callback(lambda parameters: check_parameters(_SPECS, parameters))
+        if p["flight_stack"] not in FLIGHT_STACKS:
+            raise ValueError(
+                f"parameter flight_stack {p['flight_stack']!r}: choose one of {', '.join(FLIGHT_STACKS)}"
+            )
+        self.airframe = load_airframe(p["airframe"])
+        self.internal = bool(p["internal_physics"]) and p["flight_stack"] != "none"
+        if p["internal_physics"] and p["flight_stack"] == "none":
+            self.get_logger().info(
+                "flight_stack none: physics comes from the simulator node (internal_physics ignored)"
+            )
+        channels = RotorChannels(
+            self.airframe, parse_rotor_channels(p["rotor_channels"]), p["pwm_min_us"], p["pwm_max_us"]
+        )
+        home = Home(
+            p["home_latitude_deg"],
+            p["home_longitude_deg"],
+            p["home_altitude_m"],
+            p["mag_declination_deg"],
+            p["mag_inclination_deg"],
+            p["mag_strength_gauss"],
+        )
+        self.refusal_counter = RefusalCounter(self.get_logger(), "input")
+        self.refusals = RefusalLog(self.refusal_counter.refuse)
+        signing = SigningPolicy(parse_signing_key(p["signing_key"]))
+        self.publish_clock = bool(p["publish_clock"])
+        self._frames = (p["frame_prefix"] + "odom", p["frame_prefix"] + "base_link")
+
+        qos = 10
+        self.command_publisher = self.create_publisher(JointState, "motor_speed_cmd", qos)
+        self.setpoint_publisher = self.create_publisher(PoseStamped, "setpoint", qos)
+        self.physics: SimulatorPhysics | None = None
+        if self.internal:
+            # The IMU samples once per flight-stack step: PX4 steps lockstep_step_s, ArduPilot's frames
+            # (usually 1 kHz or more) are met by sampling at every physics step.
+            imu_period_s = p["lockstep_step_s"] if p["flight_stack"] == "px4" else 1.0 / p["physics_rate_hz"]
+            self.physics = SimulatorPhysics.for_airframe(
+                self.airframe,
+                imu_period_s,
+                seed=p["seed"],
+                noise=p["sensor_noise"],
+                physics_rate_hz=p["physics_rate_hz"],
+                odom_rate_hz=p["publish_rate_hz"],
+            )
+            # The simulator node's QoS, so that every subscriber of its topics matches this node too.
+            self.odom_publisher = self.create_publisher(Odometry, "odom", qos)
+            self.imu_publisher = self.create_publisher(Imu, "imu", qos_profile_sensor_data)
+            self.speeds_publisher = self.create_publisher(JointState, "motor_speeds", qos)
+            self.clock_publisher = (
+                self.create_publisher(Clock, "clock", CLOCK_QOS) if self.publish_clock else None
+            )
+        else:
+            self._odom: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
+            self._speeds: FloatArray = np.zeros(self.airframe.n_rotors)
+            self.create_subscription(Odometry, "odom", self._on_odom, qos_profile_sensor_data)
+            self.create_subscription(Imu, "imu", self._on_imu, qos_profile_sensor_data)
+            self.create_subscription(
+                JointState, "motor_speeds", self._on_motor_speeds, qos_profile_sensor_data
+            )
+
+        stack_port = p["flight_stack_port"]
+        config = BridgeConfig(
+            flight_stack=p["flight_stack"],
+            px4=Px4Config(
+                p["flight_stack_address"],
+                stack_port or PX4_PORT,
+                p["lockstep_step_s"],
+                p["gps_rate_hz"],
+                system_id=p["system_id"],
+            ),
+            ardupilot=ArduPilotConfig(p["flight_stack_address"], stack_port or ARDUPILOT_PORT),
+            ground_station=GroundStationConfig(
+                p["gcs_address"],
+                p["gcs_port"],
+                bind_port=p["gcs_bind_port"],
+                system_id=p["system_id"],
+                telemetry_rate_hz=p["gcs_telemetry_rate_hz"],
+            )
+            if p["gcs_enabled"]
+            else None,
+            home=home,
+        )
+        outputs = BridgeOutputs(self._publish_command, self._publish_state, self._publish_setpoint)
+        try:
+            self.bridge = MavlinkBridge(config, channels, self.physics, outputs, self.refusals, signing)
+        except OSError as error:
+            raise ValueError(str(error)) from error
+        self._loop = BridgeThread(self.bridge).start()
+        mode = "internal physics (lockstep)" if self.internal else "external physics (forwarding topics)"
+        where = (
+            f"{p['flight_stack']} on port {self.bridge.flight_stack_port}"
+            if self.bridge.flight_stack_port
+            else "no flight stack"
+        )
+        gcs = (
+            f"ground station {p['gcs_address']}:{p['gcs_port']}" if p["gcs_enabled"] else "no ground station"
+        )
+        signed = ", signed commands only" if signing.enabled else ""
+        self.get_logger().info(f"{self.airframe.name}: {where}, {gcs}{signed}; {mode}")
+
+    # ------------------------------------------------------------------ bridge -> ROS (bridge thread)
+
+    def _stamp(self, t_s: float) -> Any:
+        # Internal physics: simulated time, like the simulator node; external: this node's clock.
+        if self.internal:
+            return stamp_from_ns(round(t_s * 1e9))
+        return self.get_clock().now().to_msg()
+
+    def _publish(self, publisher: Any, message: Any) -> None:
+        # Between Ctrl-C (the context shuts down) and destroy_node (the thread stops) the bridge thread
+        # may still publish: that is the end of the run, not an error.
+        if not self.context.ok():
+            return
+        try:
+            publisher.publish(message)
+        except RCLError:
+            if self.context.ok():
+                raise
+
+    def _publish_command(self, speeds_rad_s: FloatArray, t_s: float) -> None:
+        self._publish(self.command_publisher, joint_state_from_rotor_speeds(speeds_rad_s, self._stamp(t_s)))
+
+    def _publish_setpoint(self, setpoint: Setpoint) -> None:
+        q = euler_to_quat(np.array([0.0, 0.0, setpoint.yaw_W_rad]))
+        stamp = self.get_clock().now().to_msg()
+        self._publish(self.setpoint_publisher, pose_message(stamp, self._frames[0], setpoint.p_W_m, q))
+
+    def _publish_state(self, state: VehicleState) -> None:
+        assert self.physics is not None
+        config = self.physics.sensor_config
+        root_rate = math.sqrt(config.imu_rate_hz)
+        for reading in self.physics.take_readings():
+            stamp = stamp_from_ns(reading.t_ns)
+            if reading.kind == "odom":
+                self._publish(self.odom_publisher, odometry_message(reading.data, stamp, *self._frames))
+            elif reading.kind == "imu":
+                imu = reading.data
+                message = imu_message(
+                    stamp,
+                    self._frames[1],
+                    imu.q_WB,
+                    imu.specific_force_B,
+                    imu.w_WB_B,
+                    accel_var=(config.accel_noise_density_m_s2_sqrt_hz * root_rate) ** 2,
+                    gyro_var=(config.gyro_noise_density_rad_s_sqrt_hz * root_rate) ** 2,
+                    orientation_var=config.orientation_noise_rad**2,
+                )
+                self._publish(self.imu_publisher, message)
+            elif reading.kind == "motor_speeds":
+                self._publish(self.speeds_publisher, joint_state_from_rotor_speeds(reading.data, stamp))
+        if self.clock_publisher is not None:
+            self._publish(self.clock_publisher, Clock(clock=stamp_from_ns(round(state.t_s * 1e9))))
+
+    # ------------------------------------------------------------------ ROS -> bridge (external physics)
+
+    def _on_odom(self, message: Odometry) -> None:
+        result = state_from_odometry(message)
+        if isinstance(result, Refusal):
+            self.refusal_counter.refuse(result.reason, f"odom: {result.detail}")
+            return
+        self._odom = result
+
+    def _on_motor_speeds(self, message: JointState) -> None:
+        result = rotor_speeds_from_joint_state(
+            message, self.airframe.n_rotors, 1.5 * self.airframe.rotor_speed_max_rad_s
+        )
+        if isinstance(result, Refusal):
+            self.refusal_counter.refuse(result.reason, f"motor_speeds: {result.detail}")
+            return
+        self._speeds = result.speeds_rad_s
+
+    def _on_imu(self, message: Imu) -> None:
+        f = np.array(
+            [message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z]
+        )
+        w = np.array([message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z])
+        if not (np.all(np.isfinite(f)) and np.all(np.isfinite(w))):
+            self.refusal_counter.refuse("non-finite imu", f"imu: specific force {f}, rate {w}")
+            return
+        if self._odom is None:
+            return  # nothing to send before the first odometry: position and attitude are unknown
+        p, v, q, w_true = self._odom
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        self.bridge.update_external_state(VehicleState(stamp_ns * 1e-9, p, v, q, w_true, self._speeds, f, w))
+
+    # ------------------------------------------------------------------ shutdown
+
+    def destroy_node(self) -> None:
+        """Stop the MAVLink thread and close its sockets before the node goes."""
+        self._loop.stop()
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``mavlink_bridge`` (``ros2 run`` and ``multirotor node``)."""
+    return run_node(MavlinkBridgeNode, args)
