@@ -157,6 +157,13 @@ fi
 say "installing multirotor_ros in editable mode with its test tools (pip install -e '.[test]')"
 pip_install -e "${REPOSITORY}[test]" || fail "pip install -e '.[test]' failed"
 
+# MAVProxy is the real ground station of the MAVLink bridge tests. Its declared dependencies include
+# VTK and OpenCV (1.3 GB, most of a fresh bootstrap) for its map and camera modules, which the tests
+# never load; its core needs only these.
+say "installing MAVProxy for the bridge tests, without its 3-D map and camera dependencies"
+pip_install pyserial defusedxml pynmeagps || fail "installing MAVProxy's core dependencies failed"
+pip_install --no-deps mavproxy || fail "installing MAVProxy failed"
+
 # Editable installs carry no data_files, so the ament layout is made here, pointing at the repository.
 say "creating the ament layout in $VENV (share/ament_index, share/multirotor_ros, lib/multirotor_ros)"
 "$VENV/bin/python" scripts/ament_layout.py "$VENV" >>"$LOG" 2>&1 || fail "scripts/ament_layout.py failed"

@@ -21,6 +21,7 @@ import threading
 import time
 from pathlib import Path
 
+import MAVProxy  # noqa: F401  (fail, not skip, when the ground station is missing)
 import numpy as np
 import pytest
 from pymavlink import mavutil
@@ -35,7 +36,6 @@ from multirotor_ros.mavlink.px4 import Px4Config
 from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
 from multirotor_ros.model.airframe import load_airframe
 
-pytest.importorskip("MAVProxy", reason="MAVProxy is a test dependency: pip install mavproxy")
 
 PASSPHRASE = "multirotor-sim-test"
 SIGNED_TARGET_NED = (1.0, 2.0, -3.0)
