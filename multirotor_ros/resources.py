@@ -19,7 +19,9 @@ def share_directories() -> list[Path]:
     """Candidate ``share/multirotor_ros`` directories, most specific first."""
     prefixes = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     prefixes += [Path(sys.prefix), Path(sys.base_prefix)]
-    in_repository = (_REPOSITORY_ROOT / "package.xml").is_file() or (_REPOSITORY_ROOT / "config" / "x8_octorotor.yaml").is_file()
+    in_repository = (_REPOSITORY_ROOT / "package.xml").is_file() or (
+        _REPOSITORY_ROOT / "config" / "x8_octorotor.yaml"
+    ).is_file()
     candidates = [_REPOSITORY_ROOT] if in_repository else []
     candidates += [prefix / "share" / PACKAGE_NAME for prefix in prefixes]
     return [c for c in candidates if c.is_dir()]

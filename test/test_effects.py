@@ -67,8 +67,15 @@ def test_effect_contract(effect_id: str) -> None:
     with pytest.raises(ValueError, match=first):
         make_effect({"id": effect_id, **parameters, first: math.nan})
     model = Model(X8, [effect])
-    x = S.make_state(8, batch=4, position_m=(0, 0, 0.5), velocity_m_s=(2, -1, 0.5), euler_rad=(0.1, -0.2, 0.5),
-                     body_rate_rad_s=(0.3, 0.2, -0.1), rotor_speed_rad_s=330)
+    x = S.make_state(
+        8,
+        batch=4,
+        position_m=(0, 0, 0.5),
+        velocity_m_s=(2, -1, 0.5),
+        euler_rad=(0.1, -0.2, 0.5),
+        body_rate_rad_s=(0.3, 0.2, -0.1),
+        rotor_speed_rad_s=330,
+    )
     assert np.all(np.isfinite(model.derivative(2.0, x, np.full((4, 8), 340.0))))
     assert set(effect.linear_parameters) <= set(parameters)
 
@@ -94,8 +101,14 @@ def test_compiled_kernel_matches_the_reference_model(effect_id: str) -> None:
 
 def _level_context(model: Model, v=(0.0, 0.0, 0.0), z=10.0, omega=340.0, t=0.0, euler=(0.0, 0.0, 0.0)):
     R = euler_to_matrix(np.array([euler]))
-    return model.context(t, np.array([[0.0, 0.0, z]]), np.array([v], float), R, np.zeros((1, 3)),
-                         np.broadcast_to(np.asarray(omega, float), (1, 8)).copy())
+    return model.context(
+        t,
+        np.array([[0.0, 0.0, z]]),
+        np.array([v], float),
+        R,
+        np.zeros((1, 3)),
+        np.broadcast_to(np.asarray(omega, float), (1, 8)).copy(),
+    )
 
 
 def _force(effect_spec: dict, **kwargs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -118,7 +131,9 @@ def test_rotor_drag_by_hand() -> None:
     dF, _, _ = _force({"id": "rotor_drag", "k_h": 1e-4}, v=(2.0, -1.0, 3.0), omega=300.0)
     np.testing.assert_allclose(dF, [-1e-4 * 2400 * 2, 1e-4 * 2400, 0.0], atol=1e-12)
     # Pitched 90 degrees (nose down), the body-horizontal plane is world y-z: world x velocity makes no drag.
-    dF, _, _ = _force({"id": "rotor_drag", "k_h": 1e-4}, v=(2.0, 0.0, 0.0), omega=300.0, euler=(0, math.pi / 2, 0))
+    dF, _, _ = _force(
+        {"id": "rotor_drag", "k_h": 1e-4}, v=(2.0, 0.0, 0.0), omega=300.0, euler=(0, math.pi / 2, 0)
+    )
     np.testing.assert_allclose(dF, 0.0, atol=1e-12)
 
 
@@ -186,7 +201,9 @@ def test_actuator_fault_by_hand() -> None:
 def test_gyroscopic_torque_by_hand() -> None:
     model = Model(X8, [{"id": "gyroscopic", "j_r": 1e-4}])
     omega = np.array([[300.0, 310, 320, 330, 340, 350, 360, 370]])
-    ctx = model.context(0.0, np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.array([[0.5, -0.2, 0.0]]), omega)
+    ctx = model.context(
+        0.0, np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.array([[0.5, -0.2, 0.0]]), omega
+    )
     _, tau, _ = model.wrench(ctx)
     _, tau0, _ = Model(X8, []).wrench(ctx)
     # Seed 1 eq. 3: Omega_r = w2 + w3 + w6 + w7 - w1 - w4 - w5 - w8 (cw minus ccw).
@@ -209,9 +226,13 @@ def test_cg_offset_by_hand() -> None:
     st.floats(-3, 3),
     st.floats(0, 3),
 )
-def test_any_effect_combination_keeps_the_state_finite(effect_ids: list[str], speed: float, height: float) -> None:
+def test_any_effect_combination_keeps_the_state_finite(
+    effect_ids: list[str], speed: float, height: float
+) -> None:
     model = Model(X8, [{"id": i, **SAMPLE_PARAMETERS[i]} for i in effect_ids])
-    x = S.make_state(8, position_m=(0, 0, height), velocity_m_s=(speed, -speed, speed / 2), rotor_speed_rad_s=340)
+    x = S.make_state(
+        8, position_m=(0, 0, height), velocity_m_s=(speed, -speed, speed / 2), rotor_speed_rad_s=340
+    )
     assert np.all(np.isfinite(model.derivative(1.0, x, np.full(8, 340.0))))
 
 

@@ -26,8 +26,14 @@ def test_hamiltonian_and_newton_euler_trajectories_agree(name: str) -> None:
         ],
     )
     hamiltonian = HamiltonianModel(model)
-    x = S.make_state(n, position_m=(0, 0, 5), velocity_m_s=(1, 0.5, 0), euler_rad=(0.2, -0.3, 1.0),
-                     body_rate_rad_s=(0.5, -0.4, 0.3), rotor_speed_rad_s=330)
+    x = S.make_state(
+        n,
+        position_m=(0, 0, 5),
+        velocity_m_s=(1, 0.5, 0),
+        euler_rad=(0.2, -0.3, 1.0),
+        body_rate_rad_s=(0.5, -0.4, 0.3),
+        rotor_speed_rad_s=330,
+    )
     X = hamiltonian.from_newton_euler(x)
     hover = model.hover_speed_rad_s()
     u = hover * (1 + 0.02 * np.sin(np.arange(n)))[None]
@@ -47,8 +53,13 @@ def test_hamiltonian_is_conserved_in_free_flight() -> None:
     model = Model(load_airframe("hexarotor_f550"), [])
     hamiltonian = HamiltonianModel(model)
     X = hamiltonian.from_newton_euler(
-        S.make_state(6, position_m=(0, 0, 10), velocity_m_s=(1, 2, 3), euler_rad=(0.3, 0.2, 0.1),
-                     body_rate_rad_s=(1.5, -1.4, 2.3))
+        S.make_state(
+            6,
+            position_m=(0, 0, 10),
+            velocity_m_s=(1, 2, 3),
+            euler_rad=(0.3, 0.2, 0.1),
+            body_rate_rad_s=(1.5, -1.4, 2.3),
+        )
     )
     integrator = Integrator(hamiltonian, 1e-3, ground_height_m=None)
     energy = hamiltonian.energy(X)
@@ -61,7 +72,9 @@ def test_reduces_to_seed2_eq19_at_level_attitude() -> None:
     """At zero roll and pitch W = I, so p_eta = I deta/dt exactly as seed 2 eq. 19 writes it."""
     model = Model(load_airframe("hexarotor_f550"), [])
     rates = np.array([0.3, -0.2, 0.5])
-    X = HamiltonianModel(model).from_newton_euler(S.make_state(6, euler_rad=(0, 0, 0.7), body_rate_rad_s=rates))
+    X = HamiltonianModel(model).from_newton_euler(
+        S.make_state(6, euler_rad=(0, 0, 0.7), body_rate_rad_s=rates)
+    )
     np.testing.assert_allclose(euler_rates_matrix(np.zeros(3)), np.eye(3))
     np.testing.assert_allclose(X[0, 9:12], model.inertia_kg_m2 @ rates, atol=1e-15)
     np.testing.assert_allclose(X[0, 6:9], 0.0)

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import MAVProxy  # noqa: F401  (fail, not skip, when the ground station is missing)
 import numpy as np
-import pytest
 from pymavlink import mavutil
 
 from multirotor_ros.frames import enu_to_ned
@@ -35,7 +34,6 @@ from multirotor_ros.mavlink.physics import SimulatorPhysics
 from multirotor_ros.mavlink.px4 import Px4Config
 from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
 from multirotor_ros.model.airframe import load_airframe
-
 
 PASSPHRASE = "multirotor-sim-test"
 SIGNED_TARGET_NED = (1.0, 2.0, -3.0)

@@ -42,8 +42,13 @@ def test_hover_is_an_equilibrium(name: str) -> None:
 def test_energy_is_conserved_without_input_or_dissipation(x8: Model, backend: str) -> None:
     """A tumbling, drifting vehicle in free flight keeps its mechanical energy (seed 2's Hamiltonian)."""
     model = x8.with_effects([])
-    x0 = S.make_state(8, position_m=(0, 0, 100.0), velocity_m_s=(3.0, -2.0, 5.0), euler_rad=(0.4, -0.3, 1.0),
-                      body_rate_rad_s=(2.0, -1.5, 3.0))
+    x0 = S.make_state(
+        8,
+        position_m=(0, 0, 100.0),
+        velocity_m_s=(3.0, -2.0, 5.0),
+        euler_rad=(0.4, -0.3, 1.0),
+        body_rate_rad_s=(2.0, -1.5, 3.0),
+    )
     x = Integrator(model, 1e-3, ground_height_m=None, backend=backend).advance(0.0, x0, np.zeros(8), 5000)
     e0, e1 = model.mechanical_energy(x0)[0], model.mechanical_energy(x)[0]
     assert abs(e1 - e0) / abs(e0) < 1e-10
@@ -70,7 +75,9 @@ def test_batch_steps_equal_separate_runs() -> None:
     airframe = load_airframe("x8_octorotor")
     c_values = np.array([0.1, 0.5, 1.0])
     batched = Model(airframe, [{"id": "quadratic_drag", "c_x": c_values, "c_y": 0.2, "c_z": 0.0}])
-    x0 = S.make_state(8, batch=3, position_m=(0, 0, 10), velocity_m_s=(5.0, 1.0, 0.0), euler_rad=(0.05, 0.1, 0.0))
+    x0 = S.make_state(
+        8, batch=3, position_m=(0, 0, 10), velocity_m_s=(5.0, 1.0, 0.0), euler_rad=(0.05, 0.1, 0.0)
+    )
     u = np.full((3, 8), 345.0)
     for backend in BACKENDS:
         x = Integrator(batched, 1e-3, backend=backend).advance(0.0, x0, u, 300)
@@ -92,8 +99,13 @@ def test_backends_agree_on_a_full_effect_flight() -> None:
             {"id": "ground_effect", "rotor_radius_m": 0.127},
         ],
     )
-    x0 = S.make_state(8, position_m=(0, 0, 0.3), velocity_m_s=(1, -1, 0.5), euler_rad=(0.1, -0.1, 0.3),
-                      rotor_speed_rad_s=340)
+    x0 = S.make_state(
+        8,
+        position_m=(0, 0, 0.3),
+        velocity_m_s=(1, -1, 0.5),
+        euler_rad=(0.1, -0.1, 0.3),
+        rotor_speed_rad_s=340,
+    )
     u = np.linspace(320, 360, 8)
     numpy_x = Integrator(model, 1e-3, backend="numpy").advance(0.0, x0, u, 300)
     compiled_x = Integrator(model, 1e-3, backend="compiled").advance(0.0, x0, u, 300)

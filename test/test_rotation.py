@@ -40,8 +40,9 @@ def test_matrix_to_quat_inverts_quat_to_matrix(euler: tuple[float, float, float]
 @given(angles, angles)
 def test_quaternion_product_composes_rotations(a: tuple, b: tuple) -> None:
     qa, qb = euler_to_quat(np.array(a)), euler_to_quat(np.array(b))
-    np.testing.assert_allclose(quat_to_matrix(quat_multiply(qa, qb)), quat_to_matrix(qa) @ quat_to_matrix(qb),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        quat_to_matrix(quat_multiply(qa, qb)), quat_to_matrix(qa) @ quat_to_matrix(qb), atol=1e-12
+    )
     np.testing.assert_allclose(quat_multiply(qa, quat_conjugate(qa)), [1, 0, 0, 0], atol=1e-12)
 
 

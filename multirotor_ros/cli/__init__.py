@@ -31,6 +31,7 @@ def _command_modules() -> dict[str, ModuleType]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every discovered sub-command."""
     parser = argparse.ArgumentParser(
         prog="multirotor",
         description="Simulate, control, identify and diagnose multirotors (ROS 2 toolkit).",
@@ -44,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``multirotor`` console script; returns the exit status."""
     arguments = list(sys.argv[1:] if argv is None else argv)
     # `multirotor node NAME --ros-args ...` hands everything after NAME to rclpy untouched.
     if len(arguments) >= 2 and arguments[0] == "node":

@@ -12,6 +12,7 @@ HELP = "print an airframe (config name or YAML path) as JSON: mass, inertia, rot
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of the sub-command."""
     parser.add_argument("airframe", help="config name (x8_octorotor, hexarotor_f550, quad_x) or a YAML path")
 
 
@@ -47,6 +48,7 @@ def airframe_summary(name_or_path: str) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Print the JSON; user errors become CommandError."""
     from multirotor_ros.model.airframe import AirframeError
 
     try:

@@ -13,11 +13,13 @@ NODE_EXECUTABLES = ("simulator", "controller", "identifier", "mavlink_bridge")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    """Arguments of the sub-command."""
     parser.add_argument("name", choices=NODE_EXECUTABLES, help="executable name, as for `ros2 run`")
     parser.add_argument("ros_args", nargs=argparse.REMAINDER, help="arguments for rclpy (--ros-args ...)")
 
 
 def run_node(name: str, ros_args: list[str]) -> int:
+    """Run node ``name`` with rclpy arguments; its exit status."""
     if name not in NODE_EXECUTABLES:
         print(
             f"multirotor node: unknown node {name!r}; choose one of {', '.join(NODE_EXECUTABLES)}",
@@ -29,4 +31,5 @@ def run_node(name: str, ros_args: list[str]) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the node named on the command line."""
     return run_node(args.name, list(args.ros_args))

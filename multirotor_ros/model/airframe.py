@@ -171,7 +171,20 @@ _REQUIRED_KEYS = ("mass_kg", "inertia_kg_m2", "k_f_N_s2", "k_t_N_m_s2", "rotors"
 _ROTOR_KEYS = {"number", "position_m", "angle_deg", "spin", "pair", "level"}
 _MOTOR_MAP_KEYS = {"input_unit", "input_min", "input_max", "speed_min_rad_s", "speed_max_rad_s", "law"}
 # Unit suffixes this project does not use, so that `mass_g` or `arm_length_cm` says "wrong unit".
-_FOREIGN_UNIT_SUFFIXES = ("_g", "_mg", "_lb", "_cm", "_mm", "_in", "_ft", "_rpm", "_deg_s", "_ms", "_us", "_kgf")
+_FOREIGN_UNIT_SUFFIXES = (
+    "_g",
+    "_mg",
+    "_lb",
+    "_cm",
+    "_mm",
+    "_in",
+    "_ft",
+    "_rpm",
+    "_deg_s",
+    "_ms",
+    "_us",
+    "_kgf",
+)
 
 
 def _similar_key(key: str, known: Sequence[str]) -> str:
@@ -201,7 +214,9 @@ class _Reader:
             raise self.fail(key, f"must be >= 0, got {number:g}")
         return number
 
-    def check_keys(self, where: str, mapping: Any, allowed: Sequence[str], required: Sequence[str] = ()) -> None:
+    def check_keys(
+        self, where: str, mapping: Any, allowed: Sequence[str], required: Sequence[str] = ()
+    ) -> None:
         if not isinstance(mapping, Mapping):
             raise self.fail(where or "(document)", f"expected a mapping, got {type(mapping).__name__}")
         for key in mapping:
@@ -224,7 +239,10 @@ class _Reader:
             matrix = np.diag([self.number(f"{key}[{i}]", v, "positive") for i, v in enumerate(value)])
         elif len(value) == 3 and all(isinstance(row, list) and len(row) == 3 for row in value):
             matrix = np.array(
-                [[self.number(f"{key}[{i}][{j}]", v) for j, v in enumerate(row)] for i, row in enumerate(value)]
+                [
+                    [self.number(f"{key}[{i}][{j}]", v) for j, v in enumerate(row)]
+                    for i, row in enumerate(value)
+                ]
             )
         else:
             raise self.fail(key, "expected [Ixx, Iyy, Izz] or a 3x3 list")
@@ -243,7 +261,9 @@ class _Reader:
             if number != index + 1:
                 raise self.fail(f"{where}.number", f"rotors must be numbered 1..N in order, got {number}")
             if ("position_m" in entry) == ("angle_deg" in entry):
-                raise self.fail(where, "give exactly one of position_m [x, y, z] or angle_deg (with arm_length_m)")
+                raise self.fail(
+                    where, "give exactly one of position_m [x, y, z] or angle_deg (with arm_length_m)"
+                )
             if "position_m" in entry:
                 raw = entry["position_m"]
                 if not isinstance(raw, list) or len(raw) != 3:
@@ -252,7 +272,7 @@ class _Reader:
             else:
                 if arm_length_m is None:
                     raise self.fail(f"{where}.angle_deg", "needs arm_length_m at the top level")
-                # angle_deg is measured from the nose (+x) towards the left (+y): counter-clockwise from above.
+                # angle_deg runs from the nose (+x) towards the left (+y): counter-clockwise from above.
                 angle = math.radians(self.number(f"{where}.angle_deg", entry["angle_deg"]))
                 position = (arm_length_m * math.cos(angle), arm_length_m * math.sin(angle), 0.0)
             spin = entry["spin"]
@@ -269,7 +289,9 @@ class _Reader:
 
     def motor_map(self, value: Any, speed_min: float, speed_max: float) -> MotorMap:
         where = "motor_map"
-        self.check_keys(where, value, sorted(_MOTOR_MAP_KEYS), required=("input_unit", "input_min", "input_max"))
+        self.check_keys(
+            where, value, sorted(_MOTOR_MAP_KEYS), required=("input_unit", "input_min", "input_max")
+        )
         unit = value["input_unit"]
         if unit not in ("pwm_us", "normalized"):
             raise self.fail(f"{where}.input_unit", f"expected 'pwm_us' or 'normalized', got {unit!r}")
@@ -295,12 +317,16 @@ class _Reader:
         if not isinstance(value, list):
             raise self.fail("effects", "expected a list of {id: ..., parameters...}")
         try:
-            return tuple(validate_effect_spec(spec, f"{self.origin}: effects[{i}]") for i, spec in enumerate(value))
+            return tuple(
+                validate_effect_spec(spec, f"{self.origin}: effects[{i}]") for i, spec in enumerate(value)
+            )
         except ValueError as error:
             raise AirframeError(str(error)) from error
 
 
-def airframe_from_dict(document: Any, origin: str = "<airframe>", source_path: Path | None = None) -> Airframe:
+def airframe_from_dict(
+    document: Any, origin: str = "<airframe>", source_path: Path | None = None
+) -> Airframe:
     """Validate a parsed YAML document and build the :class:`Airframe`."""
     reader = _Reader(origin)
     reader.check_keys("", document, list(_TOP_LEVEL_KEYS), required=_REQUIRED_KEYS)
@@ -345,7 +371,8 @@ def airframe_from_dict(document: Any, origin: str = "<airframe>", source_path: P
     singular = np.linalg.svd(airframe.allocation / np.abs(airframe.allocation).max(axis=1, keepdims=True))[1]
     if singular.min() < 1e-9:
         raise reader.fail(
-            "rotors", "the allocation matrix has rank < 4: this layout cannot produce every thrust/torque direction"
+            "rotors",
+            "the allocation matrix has rank < 4: this layout cannot produce every thrust/torque direction",
         )
     return airframe
 

@@ -39,17 +39,45 @@ PARAMETER_LAYOUT: dict[str, int] = {
     name: index
     for index, name in enumerate(
         (
-            "mass_kg", "gravity_m_s2", "k_f", "k_t", "c_x", "c_y", "c_z", "k_h", "k_f1", "eta_lower",
-            "rotor_radius_m", "k_v", "tau_s", "f_x", "f_y", "f_z", "motor", "effectiveness", "t_fault_s",
-            "j_r", "r_x", "r_y",
+            "mass_kg",
+            "gravity_m_s2",
+            "k_f",
+            "k_t",
+            "c_x",
+            "c_y",
+            "c_z",
+            "k_h",
+            "k_f1",
+            "eta_lower",
+            "rotor_radius_m",
+            "k_v",
+            "tau_s",
+            "f_x",
+            "f_y",
+            "f_z",
+            "motor",
+            "effectiveness",
+            "t_fault_s",
+            "j_r",
+            "r_x",
+            "r_y",
         )
     )
 }
 NEUTRAL = {"eta_lower": 1.0, "effectiveness": 1.0}
 SUPPORTED_EFFECTS = frozenset(
     {
-        "quadratic_drag", "rotor_drag", "thrust_speed_dependence", "coaxial_loss", "ground_effect",
-        "inflow_thrust_loss", "motor_lag", "mass_offset", "constant_force", "actuator_fault", "gyroscopic",
+        "quadratic_drag",
+        "rotor_drag",
+        "thrust_speed_dependence",
+        "coaxial_loss",
+        "ground_effect",
+        "inflow_thrust_loss",
+        "motor_lag",
+        "mass_offset",
+        "constant_force",
+        "actuator_fault",
+        "gyroscopic",
         "cg_offset",
     }
 )
@@ -160,15 +188,22 @@ def _rotor_sums(t, y, u, prm, positions, spin, lower, lag, ground, lanes, work):
             # A loop of its own, so that models without ground effect pay none of its divisions.
             for lane in range(lanes):
                 radius = prm[_RADIUS + lane]
-                height = (y[_P_Z + lane] + work[_R20 + lane] * p_x + work[_R21 + lane] * p_y
-                          + work[_R22 + lane] * p_z)
+                height = (
+                    y[_P_Z + lane]
+                    + work[_R20 + lane] * p_x
+                    + work[_R21 + lane] * p_y
+                    + work[_R22 + lane] * p_z
+                )
                 height = max(height, GROUND_MIN_HEIGHT_IN_RADII * radius)
                 ratio = radius / (4.0 * height)
                 work[_GROUND_FACTOR + lane] = 1.0 / (1.0 - ratio * ratio)
         for lane in range(lanes):
             w = source[speed_row + lane]
-            thrust = (prm[_K_F + lane] * w * w + prm[_K_F1 + lane] * w * w * w
-                      - prm[_K_V + lane] * w * work[_CLIMB + lane])
+            thrust = (
+                prm[_K_F + lane] * w * w
+                + prm[_K_F1 + lane] * w * w * w
+                - prm[_K_V + lane] * w * work[_CLIMB + lane]
+            )
             eta = prm[_ETA_LOWER + lane]
             factor = (eta if is_lower else 1.0) * work[_GROUND_FACTOR + lane]
             faulty = (prm[_MOTOR + lane] == number) & (t >= prm[_T_FAULT + lane])
@@ -245,8 +280,9 @@ def _rigid_body(y, prm, inertia, inertia_inv, lanes, work, k):
 
 
 @_lane
-def _derivative(t, y, u, prm, inertia, inertia_inv, positions, spin, lower, lag, ground, sums_current, lanes,
-                work, k):
+def _derivative(
+    t, y, u, prm, inertia, inertia_inv, positions, spin, lower, lag, ground, sums_current, lanes, work, k
+):
     """dx/dt of the first ``lanes`` lanes into ``k``; its rotor rows stay zero without motor lag.
 
     ``sums_current``: the rotor sums in ``work`` are still valid (see ``_sums_steady``): not recomputed.
@@ -353,8 +389,24 @@ def _rk4_step_end(dt, lanes, rows, use_ground, ground_height, xs, ks, acc):
 
 
 @_jit
-def _rk4_chunk(t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground,
-               ground_height, lanes, valid, failed):
+def _rk4_chunk(
+    t0,
+    xs,
+    us,
+    ps,
+    inertia,
+    inertia_inv,
+    positions,
+    spin,
+    lower,
+    dt,
+    steps,
+    use_ground,
+    ground_height,
+    lanes,
+    valid,
+    failed,
+):
     """RK4 ``steps`` times for the lanes of one chunk; ``failed[lane]`` = first step that went non-finite."""
     size = S.ROTORS_START + positions.shape[0]
     lag = ps[_TAU] > 0
@@ -372,8 +424,23 @@ def _rk4_chunk(t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt,
         # One call site per lane function: each is inlined once.
         for stage in range(4):
             offset = 0.0 if stage == 0 else (half_dt if stage < 3 else dt)
-            _derivative(t + offset, xs if stage == 0 else ys, us, ps, inertia, inertia_inv, positions, spin,
-                        lower, lag, ground, stage > 0 and steady, lanes, work, ks)
+            _derivative(
+                t + offset,
+                xs if stage == 0 else ys,
+                us,
+                ps,
+                inertia,
+                inertia_inv,
+                positions,
+                spin,
+                lower,
+                lag,
+                ground,
+                stage > 0 and steady,
+                lanes,
+                work,
+                ks,
+            )
             if stage < 3:
                 _rk4_stage_update(stage == 0, half_dt if stage < 2 else dt, lanes, rows, xs, ks, acc, ys)
         if _rk4_step_end(dt, lanes, rows, use_ground, ground_height, xs, ks, acc):
@@ -385,8 +452,9 @@ def _rk4_chunk(t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt,
                 break
 
 
-def _advance(t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground,
-             ground_height):
+def _advance(
+    t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height
+):
     """RK4 ``steps`` times for every vehicle, in place.
 
     Returns per vehicle the index of the first step that went non-finite (-1 if none).
@@ -402,8 +470,24 @@ def _advance(t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, st
         us = np.empty(u.shape[1] * L)
         ps = np.empty(prm.shape[1] * L)
         _load_chunk(x, u, prm, first, lanes, prm[0, _TAU_COLUMN] <= 0, xs, us, ps)
-        _rk4_chunk(t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground,
-                   ground_height, lanes, valid, failed[first : first + valid])
+        _rk4_chunk(
+            t0,
+            xs,
+            us,
+            ps,
+            inertia,
+            inertia_inv,
+            positions,
+            spin,
+            lower,
+            dt,
+            steps,
+            use_ground,
+            ground_height,
+            lanes,
+            valid,
+            failed[first : first + valid],
+        )
         for lane in range(valid):
             for j in range(size):
                 x[first + lane, j] = xs[j * L + lane]
@@ -428,8 +512,9 @@ def _derivative_batch(t, x, u, prm, inertia, inertia_inv, positions, spin, lower
     for first in range(0, batch, L):
         lanes = min(L, batch - first)
         _load_chunk(x, u, prm, first, lanes, False, xs, us, ps)
-        _derivative(t, xs, us, ps, inertia, inertia_inv, positions, spin, lower, lag, ground, False, lanes,
-                    work, ks)
+        _derivative(
+            t, xs, us, ps, inertia, inertia_inv, positions, spin, lower, lag, ground, False, lanes, work, ks
+        )
         for lane in range(lanes):
             for j in range(size):
                 out[first + lane, j] = ks[j * L + lane]
@@ -454,18 +539,32 @@ class CompiledStepper:
     def derivative(self, t: float, x: FloatArray, u: FloatArray) -> FloatArray:
         """dx/dt for each vehicle, from the compiled formulas (used to test them against the numpy model)."""
         out = np.empty_like(x, dtype=float)
-        _derivative_batch(float(t), np.ascontiguousarray(x, dtype=float),
-                          np.ascontiguousarray(u, dtype=float), self.parameters, *self._geometry, out)
+        _derivative_batch(
+            float(t),
+            np.ascontiguousarray(x, dtype=float),
+            np.ascontiguousarray(u, dtype=float),
+            self.parameters,
+            *self._geometry,
+            out,
+        )
         return out
 
-    def advance(self, t: float, x: FloatArray, u: FloatArray, dt: float, steps: int,
-                ground_height_m: float | None) -> FloatArray:
+    def advance(
+        self, t: float, x: FloatArray, u: FloatArray, dt: float, steps: int, ground_height_m: float | None
+    ) -> FloatArray:
         """State after ``steps`` RK4 steps of ``dt`` with u held; FloatingPointError if one blows up."""
         x_next = np.array(x, dtype=float, order="C")
         kernel = _advance_parallel if self.batch >= PARALLEL_MIN_BATCH else _advance_serial
         failed = kernel(
-            float(t), x_next, np.ascontiguousarray(u, dtype=float), self.parameters, *self._geometry,
-            float(dt), int(steps), ground_height_m is not None, float(ground_height_m or 0.0),
+            float(t),
+            x_next,
+            np.ascontiguousarray(u, dtype=float),
+            self.parameters,
+            *self._geometry,
+            float(dt),
+            int(steps),
+            ground_height_m is not None,
+            float(ground_height_m or 0.0),
         )
         if np.any(failed >= 0):
             vehicle = int(np.argmax(failed >= 0))

@@ -57,7 +57,6 @@ class Effect:
 
     id: ClassVar[str]
     parameter_units: ClassVar[dict[str, str]]
-    description: ClassVar[str]
     rotational: ClassVar[bool] = False
     # Parameters that are not fitted by least squares (discrete, or entering non-linearly).
     nonlinear_parameters: ClassVar[tuple[str, ...]] = ()
@@ -81,6 +80,11 @@ class Effect:
                 raise ValueError(f"effect {self.id!r}: parameter {name} must be a finite number or 1-D array")
             self.parameters[name] = array
         self._check_ranges()
+
+    @classmethod
+    def description(cls) -> str:
+        """What the effect adds, in one line (its docstring)."""
+        return (cls.__doc__ or cls.id).strip().splitlines()[0]
 
     def _check_ranges(self) -> None:
         """Subclasses refuse physically meaningless values here."""
@@ -123,12 +127,11 @@ class Effect:
         return None
 
 
-
-
 class QuadraticDrag(Effect):
+    """Fuselage drag -(c_x vx|vx|, c_y vy|vy|, c_z vz|vz|) in world axes (seed 1 eqs. 13-14)."""
+
     id = "quadratic_drag"
     parameter_units = {"c_x": "N s^2/m^2", "c_y": "N s^2/m^2", "c_z": "N s^2/m^2"}
-    description = "fuselage drag -(c_x vx|vx|, c_y vy|vy|, c_z vz|vz|) in world axes (seed 1 eqs. 13-14)"
 
     def _check_ranges(self) -> None:
         for name in self.parameter_units:
@@ -143,9 +146,10 @@ class QuadraticDrag(Effect):
 
 
 class RotorDrag(Effect):
+    """Hub force / blade flapping: -k_h omega_sum R P R^T v, P = diag(1, 1, 0)."""
+
     id = "rotor_drag"
     parameter_units = {"k_h": "N s^2/(m rad)"}
-    description = "hub force / blade flapping: -k_h omega_sum R P R^T v, P = diag(1, 1, 0)"
 
     def _check_ranges(self) -> None:
         self._require("k_h", bool(np.all(self["k_h"] >= 0)), "must be >= 0")
@@ -162,29 +166,37 @@ class RotorDrag(Effect):
 
 
 class ThrustSpeedDependence(Effect):
+    """Thrust coefficient growing with rotor speed: F_i = (k_f + k_f1 omega_i) omega_i^2 (seed 1 Fig. 4)."""
+
     id = "thrust_speed_dependence"
     parameter_units = {"k_f1": "N s^3/rad^3"}
-    description = "thrust coefficient growing with rotor speed: F_i = (k_f + k_f1 omega_i) omega_i^2 (seed 1 Fig. 4)"
 
     def thrust_terms(self, ctx: EffectContext) -> FloatArray:
         return _column(self["k_f1"]) * ctx.omega**3
 
 
 class CoaxialLoss(Effect):
+    """A lower coaxial rotor gives eta F_i instead of F_i (seed 1 eq. 6, alpha_ij)."""
+
     id = "coaxial_loss"
     parameter_units = {"eta_lower": "-"}
-    description = "a lower coaxial rotor gives eta F_i instead of F_i (seed 1 eq. 6, alpha_ij)"
+
     def _check_ranges(self) -> None:
-        self._require("eta_lower", bool(np.all((self["eta_lower"] > 0) & (self["eta_lower"] <= 1.5))), "must be in (0, 1.5]")
+        self._require(
+            "eta_lower",
+            bool(np.all((self["eta_lower"] > 0) & (self["eta_lower"] <= 1.5))),
+            "must be in (0, 1.5]",
+        )
 
     def thrust_factor(self, ctx: EffectContext) -> FloatArray:
         return np.where(ctx.lower_rotor_mask, _column(self["eta_lower"]), 1.0) * np.ones_like(ctx.omega)
 
 
 class GroundEffect(Effect):
+    """Thrust x 1/(1 - (R/(4h))^2), h = rotor height above ground (Cheeseman-Bennett)."""
+
     id = "ground_effect"
     parameter_units = {"rotor_radius_m": "m"}
-    description = "thrust x 1/(1 - (R/(4h))^2), h = rotor height above ground (Cheeseman-Bennett)"
     nonlinear_parameters = ("rotor_radius_m",)
     # Below h = R/2 the formula leaves its range of validity and diverges at R/4; the factor is held at
     # its h = R/2 value (4/3) so that a vehicle resting on the ground gets a finite, plausible thrust gain.
@@ -201,9 +213,10 @@ class GroundEffect(Effect):
 
 
 class InflowThrustLoss(Effect):
+    """F_i = k_f omega_i^2 - k_v omega_i (v . e_z): less thrust in climb, more in descent."""
+
     id = "inflow_thrust_loss"
     parameter_units = {"k_v": "N s^2/(m rad)"}
-    description = "F_i = k_f omega_i^2 - k_v omega_i (v . e_z): less thrust in climb, more in descent"
 
     def _climb(self, ctx: EffectContext) -> FloatArray:
         return np.einsum("bi,bi->b", ctx.v_WB_W, ctx.e_z_W)[:, None]
@@ -213,9 +226,10 @@ class InflowThrustLoss(Effect):
 
 
 class MotorLag(Effect):
+    """Rotor speed follows its input through d(omega)/dt = (omega_in - omega)/tau."""
+
     id = "motor_lag"
     parameter_units = {"tau_s": "s"}
-    description = "rotor speed follows its input through d(omega)/dt = (omega_in - omega)/tau"
     nonlinear_parameters = ("tau_s",)
 
     def _check_ranges(self) -> None:
@@ -227,9 +241,10 @@ class MotorLag(Effect):
 
 
 class MassOffset(Effect):
+    """The mass is m + dm (payload)."""
+
     id = "mass_offset"
     parameter_units = {"dm_kg": "kg"}
-    description = "the mass is m + dm (payload)"
 
     @property
     def mass_delta_kg(self) -> FloatArray:  # type: ignore[override]
@@ -237,9 +252,10 @@ class MassOffset(Effect):
 
 
 class ConstantForce(Effect):
+    """A steady external force in world axes (steady wind, tether)."""
+
     id = "constant_force"
     parameter_units = {"f_x": "N", "f_y": "N", "f_z": "N"}
-    description = "a steady external force in world axes (steady wind, tether)"
 
     def wrench(self, ctx: EffectContext, thrust: FloatArray) -> tuple[FloatArray, FloatArray]:
         force = np.stack(np.broadcast_arrays(self["f_x"], self["f_y"], self["f_z"]), axis=-1)
@@ -248,32 +264,38 @@ class ConstantForce(Effect):
 
 
 class ActuatorFault(Effect):
+    """From t_fault on, rotor `motor` gives effectiveness x F_i (and x its drag torque)."""
+
     id = "actuator_fault"
     parameter_units = {"motor": "1..N", "effectiveness": "-", "t_fault_s": "s"}
-    description = "from t_fault on, rotor `motor` gives effectiveness x F_i (and x its drag torque)"
     nonlinear_parameters = ("motor", "effectiveness", "t_fault_s")
     # A damaged propeller or a weak ESC loses torque with thrust: both scale together.
     scales_rotor_torque = True
 
     def _check_ranges(self) -> None:
         motor = self["motor"]
-        self._require("motor", bool(np.all((motor >= 1) & (motor == np.round(motor)))), "must be a rotor number 1..N")
+        self._require(
+            "motor", bool(np.all((motor >= 1) & (motor == np.round(motor)))), "must be a rotor number 1..N"
+        )
         eff = self["effectiveness"]
         self._require("effectiveness", bool(np.all((eff >= 0) & (eff <= 1))), "must be in [0, 1]")
 
     def thrust_factor(self, ctx: EffectContext) -> FloatArray:
         n_rotors = ctx.omega.shape[1]
         if np.any(self["motor"] > n_rotors):
-            raise ValueError(f"effect 'actuator_fault': motor {self['motor']} but the airframe has {n_rotors} rotors")
+            raise ValueError(
+                f"effect 'actuator_fault': motor {self['motor']} but the airframe has {n_rotors} rotors"
+            )
         rotor_numbers = np.arange(1, n_rotors + 1)
         active = (rotor_numbers == _column(self["motor"])) & (ctx.t[:, None] >= _column(self["t_fault_s"]))
         return np.where(active, _column(self["effectiveness"]), 1.0)
 
 
 class Gyroscopic(Effect):
+    """Propeller gyroscopic torque -w_B x (J_r sum(s_i omega_i) e_z) (seed 1 eq. 7, J_r Omega_r)."""
+
     id = "gyroscopic"
     parameter_units = {"j_r": "kg m^2"}
-    description = "propeller gyroscopic torque -w_B x (J_r sum(s_i omega_i) e_z) (seed 1 eq. 7, J_r Omega_r)"
     rotational = True
 
     def wrench(self, ctx: EffectContext, thrust: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -286,9 +308,10 @@ class Gyroscopic(Effect):
 
 
 class CgOffset(Effect):
+    """Thrust acts about a centre of gravity moved by (r_x, r_y) in body FLU."""
+
     id = "cg_offset"
     parameter_units = {"r_x": "m", "r_y": "m"}
-    description = "thrust acts about a centre of gravity moved by (r_x, r_y) in body FLU"
     rotational = True
 
     def wrench(self, ctx: EffectContext, thrust: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -41,8 +41,13 @@ class Integrator:
     ground holds it still (velocity and body rate zero) until thrust lifts it.
     """
 
-    def __init__(self, model: Model | HamiltonianModel, dt_s: float, ground_height_m: float | None = 0.0,
-                 backend: Backend = "auto"):
+    def __init__(
+        self,
+        model: Model | HamiltonianModel,
+        dt_s: float,
+        ground_height_m: float | None = 0.0,
+        backend: Backend = "auto",
+    ):
         if not (np.isfinite(dt_s) and dt_s > 0):
             raise ValueError(f"integration step must be a positive number of seconds, got {dt_s}")
         self.model = model
@@ -89,18 +94,3 @@ class Integrator:
     def step(self, t: float, x: FloatArray, u: ArrayLike) -> FloatArray:
         """State after one step of ``dt_s``."""
         return self.advance(t, x, u, 1)
-
-    def simulate(self, x0: FloatArray, commands: Callable[[float, FloatArray], ArrayLike] | ArrayLike, steps: int,
-                 t0: float = 0.0, record_every: int = 1) -> tuple[FloatArray, FloatArray]:
-        """Run ``steps`` steps; ``commands`` is a constant (B, N) array or a function u(t, x) held for
-        ``record_every`` steps. Returns the recorded times (K,) and states (K, B, state size)."""
-        policy = commands if callable(commands) else (lambda _t, _x, _u=np.asarray(commands, float): _u)
-        x = np.array(x0, dtype=float)
-        times, states = [t0], [x.copy()]
-        for k in range(0, steps, record_every):
-            chunk = min(record_every, steps - k)
-            t = t0 + k * self.dt_s
-            x = self.advance(t, x, policy(t, x), chunk)
-            times.append(t + chunk * self.dt_s)
-            states.append(x.copy())
-        return np.array(times), np.stack(states)

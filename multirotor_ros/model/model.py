@@ -38,15 +38,19 @@ class Model:
         ids = [e.id for e in self.effects]
         duplicated = sorted({i for i in ids if ids.count(i) > 1})
         if duplicated:
-            raise ValueError(f"effect(s) listed twice: {', '.join(duplicated)}; merge their parameters into one entry")
+            raise ValueError(
+                f"effect(s) listed twice: {', '.join(duplicated)}; merge their parameters into one entry"
+            )
         for effect in self.effects:
             if effect.id == "actuator_fault" and np.any(effect["motor"] > airframe.n_rotors):
                 raise ValueError(
-                    f"actuator_fault: motor {effect['motor']} but {airframe.name} has {airframe.n_rotors} rotors"
+                    f"actuator_fault: motor {effect['motor']} but {airframe.name} "
+                    f"has {airframe.n_rotors} rotors"
                 )
         self.gravity_m_s2 = gravity_m_s2
         self.mass_kg: FloatArray = np.asarray(
-            airframe.mass_kg + sum((np.asarray(e.mass_delta_kg, dtype=float) for e in self.effects), np.zeros(()))
+            airframe.mass_kg
+            + sum((np.asarray(e.mass_delta_kg, dtype=float) for e in self.effects), np.zeros(()))
         )
         if np.any(self.mass_kg <= 0):
             raise ValueError(f"mass_offset makes the mass non-positive: {self.mass_kg}")
@@ -54,7 +58,9 @@ class Model:
         self._inertia_inv = np.linalg.inv(self.inertia_kg_m2)
         lags = [e.rotor_time_constant_s for e in self.effects if e.rotor_time_constant_s is not None]
         self.rotor_time_constant_s: FloatArray | None = np.asarray(lags[0]) if lags else None
-        self._thrust_term_effects = [e for e in self.effects if type(e).thrust_terms is not Effect.thrust_terms]
+        self._thrust_term_effects = [
+            e for e in self.effects if type(e).thrust_terms is not Effect.thrust_terms
+        ]
         self._factor_effects = [e for e in self.effects if type(e).thrust_factor is not Effect.thrust_factor]
         self._wrench_effects = [e for e in self.effects if type(e).wrench is not Effect.wrench]
 
@@ -166,13 +172,17 @@ class Model:
         """Rotor-speed commands as (B, N); raises ValueError naming the vehicle and rotor if not finite."""
         command = np.asarray(u, dtype=float)
         if command.shape[-1:] != (self.n_rotors,):
-            raise ValueError(f"rotor command has {command.shape[-1:]} entries, {self.airframe.name} has {self.n_rotors} rotors")
+            raise ValueError(
+                f"rotor command has {command.shape[-1:]} entries, "
+                f"{self.airframe.name} has {self.n_rotors} rotors"
+            )
         command = np.broadcast_to(command, (batch, self.n_rotors))
         bad = ~np.isfinite(command)
         if bad.any():
             vehicle, rotor = np.argwhere(bad)[0]
             raise ValueError(
-                f"rotor command is not finite: vehicle {vehicle}, rotor_{rotor + 1} = {command[vehicle, rotor]}"
+                f"rotor command is not finite: vehicle {vehicle}, "
+                f"rotor_{rotor + 1} = {command[vehicle, rotor]}"
             )
         return command
 
@@ -218,7 +228,9 @@ class Model:
         """Kinetic + potential energy [J] of each vehicle: the Hamiltonian of seed 2 (eq. 5)."""
         v = x[:, S.VELOCITY]
         w = x[:, S.BODY_RATE]
-        kinetic = 0.5 * self.mass_kg * np.sum(v * v, axis=1) + 0.5 * np.einsum("bi,ij,bj->b", w, self.inertia_kg_m2, w)
+        kinetic = 0.5 * self.mass_kg * np.sum(v * v, axis=1) + 0.5 * np.einsum(
+            "bi,ij,bj->b", w, self.inertia_kg_m2, w
+        )
         return kinetic + self.mass_kg * self.gravity_m_s2 * x[:, 2]
 
     def hover_speed_rad_s(self, height_m: float = 10.0) -> float:
@@ -227,11 +239,15 @@ class Model:
 
         def vertical_acceleration(speed: float) -> float:
             omega = np.full((1, self.n_rotors), speed)
-            ctx = self.context(1e9, x[:, S.POSITION], x[:, S.VELOCITY], np.eye(3)[None], x[:, S.BODY_RATE], omega)
+            ctx = self.context(
+                1e9, x[:, S.POSITION], x[:, S.VELOCITY], np.eye(3)[None], x[:, S.BODY_RATE], omega
+            )
             a_W, _ = self.accelerations(ctx)
             return float(a_W[0, 2])
 
         top = self.airframe.rotor_speed_max_rad_s
         if vertical_acceleration(top) < 0:
-            raise ValueError(f"{self.airframe.name} cannot hover: full speed {top:g} rad/s gives less thrust than weight")
+            raise ValueError(
+                f"{self.airframe.name} cannot hover: full speed {top:g} rad/s gives less thrust than weight"
+            )
         return float(brentq(vertical_acceleration, 0.0, top, xtol=1e-9))
