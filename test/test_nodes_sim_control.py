@@ -222,8 +222,12 @@ class Vehicle:
 
         return stamp_s(self.odom.wait_for(there, timeout=120.0)[-1])
 
-    def until(self, t_s: float, timeout: float = 60.0) -> list[Odometry]:
-        """Wait until the odometry reaches simulated time ``t_s``; all odometry received so far."""
+    def until(self, t_s: float, timeout: float = 240.0) -> list[Odometry]:
+        """Wait until the odometry reaches simulated time ``t_s``; all odometry received so far.
+
+        In lockstep simulated time runs only as fast as the machine lets four processes exchange
+        messages: on a loaded 2-core machine that was seen as low as 0.06 x real time, hence the wait.
+        """
         self.odom.wait_for(lambda m: stamp_s(m) >= t_s, timeout=timeout)
         return self.odom.messages
 
