@@ -199,7 +199,6 @@ def test_mavproxy_flies_the_simulated_vehicle_through_setpoint_with_signed_comma
     # The whole graph: simulator and controller nodes fly; the bridge only forwards (ground station only).
     from test_mavlink_mavproxy import read_tlog, start_mavproxy, stop
 
-    pytest.importorskip("MAVProxy", reason="MAVProxy is a test dependency: pip install mavproxy")
     passphrase = "graph-test-key"  # one word: MAVProxy's `signing key` takes one
     gcs_port = free_port(socket.SOCK_DGRAM)
     bridge_port = free_port(socket.SOCK_DGRAM)

@@ -1,0 +1,186 @@
+"""Rotor fault diagnosis end to end: residuals, detection, isolation, effectiveness, and words for people.
+
+:class:`RotorDiagnoser` runs :class:`~multirotor_ros.diagnosis.residuals.WrenchResidualGenerator` and
+:class:`~multirotor_ros.diagnosis.detection.FaultDetector` together on a batch of vehicles (one for
+the identifier node, many for the fault campaign). After a gap in the data the observer restarts,
+and the detector waits ``settle_s`` (a few observer convergence times) before it looks again, so
+that the observer's transient is not taken for a fault; it keeps what it learnt of the noise.
+
+:func:`rotor_reports` turns one vehicle's state into one :class:`RotorReport` per rotor: the
+``diagnostics`` topic's statuses (OK / WARN / ERROR, the estimated effectiveness, a message).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from multirotor_ros.diagnosis.detection import (
+    DetectionSettings,
+    DetectorOutput,
+    FaultDetector,
+    coaxial_partners,
+)
+from multirotor_ros.diagnosis.residuals import ObserverSettings, ResidualSample, WrenchResidualGenerator
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import FloatArray
+
+Level = Literal["OK", "WARN", "ERROR"]
+
+
+@dataclass(frozen=True)
+class DiagnosisSample:
+    """What one update produced: the residuals and the detector's view (None while settling)."""
+
+    residuals: ResidualSample
+    detection: DetectorOutput | None
+
+
+class RotorDiagnoser:
+    """Residual generator + detector for ``batch`` vehicles of one airframe (module docstring)."""
+
+    def __init__(
+        self,
+        model: Model,
+        batch: int = 1,
+        observer: ObserverSettings | None = None,
+        detection: DetectionSettings | None = None,
+    ):
+        self.observer_settings = observer or ObserverSettings()
+        self.residuals = WrenchResidualGenerator(model, self.observer_settings)
+        self.partners = coaxial_partners(model.airframe)
+        self.detector = FaultDetector(self.residuals.wrench_scale, self.partners, batch, detection)
+        self.batch = batch
+        self.settle_s = 3.0 * self.observer_settings.convergence_time_s
+        self._settle_until: float | None = None
+        self.last: DetectorOutput | None = None
+
+    @property
+    def model(self) -> Model:
+        """The model residuals are computed from."""
+        return self.residuals.model
+
+    def set_model(self, model: Model) -> None:
+        """Compute residuals from another (identified) model from the next sample on."""
+        self.residuals.set_model(model)
+
+    def set_detection_settings(self, settings: DetectionSettings) -> None:
+        """New thresholds; the learnt noise, bias and alarms are kept."""
+        self.detector.settings = settings
+        self.detector.refresh_settings()
+
+    def restart_observer(self, t: float) -> None:
+        """After a gap: restart the observer, and let it settle before detecting again."""
+        self.residuals.reset()
+        self._settle_until = t + self.settle_s
+
+    def update(
+        self,
+        t: float,
+        dt_s: float,
+        p_WB_W: FloatArray,
+        v_WB_W: FloatArray,
+        R_WB: FloatArray,
+        w_WB_B: FloatArray,
+        omega: FloatArray,
+        a_W: FloatArray | None = None,
+    ) -> DiagnosisSample:
+        """One measurement for every vehicle (arrays batched over B); ``dt_s`` since the previous one."""
+        if not self.residuals.started and self._settle_until is None:
+            self._settle_until = t + self.settle_s
+        sample = self.residuals.update(t, dt_s, p_WB_W, v_WB_W, R_WB, w_WB_B, omega, a_W)
+        if sample.model_change_wrench is not None:
+            self.detector.shift_baseline(sample.model_change_wrench)
+        if self._settle_until is not None and t < self._settle_until - 1e-9:
+            return DiagnosisSample(sample, None)
+        self._settle_until = None
+        self.last = self.detector.update(t, dt_s, sample.wrench, sample.signatures)
+        return DiagnosisSample(sample, self.last)
+
+    @property
+    def any_suspicion(self) -> FloatArray:
+        """(B,) detector in alarm or about to be: identification should not learn from that vehicle."""
+        return self.detector.suspicious
+
+
+@dataclass(frozen=True)
+class RotorReport:
+    """One rotor's status for the ``diagnostics`` topic."""
+
+    name: str  # rotor_k
+    level: Level
+    effectiveness: float  # estimated remaining share of thrust [0..1]
+    message: str
+    values: dict[str, str]
+
+
+def rotor_reports(
+    output: DetectorOutput | None,
+    n_rotors: int,
+    partners: ArrayLike,
+    error_below_effectiveness: float,
+    vehicle: int = 0,
+    clock_offset_s: float = 0.0,
+) -> list[RotorReport]:
+    """Per-rotor statuses of one vehicle in words a person can read (see the module docstring).
+
+    Times are the detector's plus ``clock_offset_s``: the identifier node gives the stamp of its first
+    sample, so that a detection time reads on the clock of the messages (simulated or wall time).
+    """
+    partner_of = np.asarray(partners, dtype=int)
+    if output is None or output.warming_up:
+        why = (
+            "learning the residual noise"
+            if output is not None
+            else "waiting for data (or settling after a gap)"
+        )
+        return [
+            RotorReport(
+                f"rotor_{k + 1}",
+                "OK",
+                1.0,
+                f"rotor {k + 1}: no verdict yet, {why}",
+                {"effectiveness": "1.00"},
+            )
+            for k in range(n_rotors)
+        ]
+    reports = []
+    faulty = int(output.rotor[vehicle]) if output.alarm[vehicle] else -1
+    for k in range(n_rotors):
+        loss = float(output.loss[vehicle, k])
+        threshold = float(output.threshold[vehicle, k])
+        values = {
+            "effectiveness": f"{output.effectiveness[vehicle, k]:.2f}",
+            "loss_estimate": f"{loss:.3f}",
+            "loss_threshold": f"{threshold:.3f}",
+        }
+        if k == faulty:
+            effectiveness = float(output.effectiveness[vehicle, k])
+            onset = float(output.onset_t[vehicle]) + clock_offset_s
+            level: Level = "ERROR" if effectiveness < error_below_effectiveness else "WARN"
+            kind = "stopped or lost its propeller" if effectiveness < 0.1 else "is losing thrust"
+            message = (
+                f"rotor {k + 1} {kind}: about {100 * effectiveness:.0f} % of its thrust left "
+                f"(fault detected at t = {onset:.2f} s)"
+            )
+            partner = int(partner_of[k])
+            if partner >= 0 and output.partner_ambiguous[vehicle]:
+                message += (
+                    f"; its coaxial partner rotor {partner + 1} fits almost as well (only the yaw torque "
+                    "tells them apart), so check both"
+                )
+            values["detected_at_s"] = f"{onset:.3f}"
+            reports.append(RotorReport(f"rotor_{k + 1}", level, effectiveness, message, values))
+            continue
+        if faulty >= 0:
+            message = f"rotor {k + 1}: no fault of its own (rotor {faulty + 1} is faulty)"
+        elif loss > 0.5 * threshold:
+            share = 100 * loss / threshold
+            message = f"rotor {k + 1}: OK, but its residual is at {share:.0f} % of the alarm threshold"
+        else:
+            message = f"rotor {k + 1}: OK"
+        reports.append(RotorReport(f"rotor_{k + 1}", "OK", 1.0, message, values))
+    return reports

@@ -1,0 +1,403 @@
+"""The identifier node's logic without ROS: checked samples in, estimates, residuals and diagnosis out.
+
+:class:`FlightMonitor` takes rotor speeds and the vehicle's state as they arrive (stamps in integer
+nanoseconds, already converted to SI, ENU/FLU) and
+
+1. checks them: a stamp that repeats or goes back is refused (with the reason a node counts); each
+   state sample is paired with the rotor speeds in force at its stamp (the newest reported at or
+   before it), waiting for them if they come later; a sample without rotor speeds at most
+   ``motor_speed_max_age_s`` old is skipped and counted; a gap longer than ``max_gap_s`` is reported
+   as a warning and restarts the observer (no derivative is taken across it);
+2. diagnoses every sample (:class:`~multirotor_ros.diagnosis.diagnoser.RotorDiagnoser`) taken in
+   flight: while the vehicle rests on the ground (its rotors carry less than its weight and it does
+   not move) nothing is identified or diagnosed, since the ground's reaction is in no model;
+3. identifies (:class:`~multirotor_ros.ident.rls.OnlineIdentifier`) from each sample with the
+   acceleration measured by the IMU, or else the central difference of the velocity over the two
+   neighbouring samples (so the identifier runs one sample behind); not while the detector suspects a
+   fault, so that a fault is not learnt as a new thrust constant; every ``refit_period_s`` it refits the
+   window and the diagnosis switches to the refitted model;
+4. records what it used (:class:`~multirotor_ros.diagnosis.record.FlightRecord`) and resumes from it.
+
+Samples are processed at ``sample_rate_hz`` on average: faster state messages are thinned out (a
+250 Hz odometry is taken at 100 Hz, samples 8 or 12 ms apart), which bounds the CPU the node needs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from multirotor_ros.diagnosis.detection import DetectionSettings, DetectorOutput
+from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser, RotorReport, rotor_reports
+from multirotor_ros.diagnosis.record import FlightRecord, window_rows
+from multirotor_ros.diagnosis.residuals import ObserverSettings
+from multirotor_ros.ident.rls import Estimate, OnlineIdentifier, OnlineSettings, RefitResult, RlsError
+from multirotor_ros.model.airframe import Airframe
+from multirotor_ros.model.rotation import FloatArray, euler_to_matrix, quat_to_euler, quat_to_matrix
+
+NS = 1_000_000_000
+# Resting (on the ground, or held): less thrust than this share of the weight, slower than these.
+RESTING_THRUST_SHARE = 0.9
+RESTING_SPEED_M_S = 0.1
+RESTING_RATE_RAD_S = 0.1
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """Sample handling of the identifier node."""
+
+    sample_rate_hz: float = 100.0  # [Hz] state samples processed per second, on average
+    max_gap_s: float = 0.1  # [s] a longer silence in the state messages is a gap
+    motor_speed_max_age_s: float = 0.05  # [s] rotor speeds older than this do not go with a state sample
+    max_wait_s: float = 0.5  # [s] (of stamps) a state sample waits at most this long for its rotor speeds
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Refused:
+    """A message the monitor refused: ``reason`` is the counting category, ``detail`` the specifics."""
+
+    reason: str
+    detail: str
+
+
+@dataclass
+class StepResult:
+    """What one state sample produced (None fields: nothing new of that kind)."""
+
+    t: float  # [s] since the first sample (or the record's origin); the stamp is the message clock
+    stamp_ns: int
+    accel_residual_W: FloatArray | None = None  # measured minus modelled force per unit mass [m/s²]
+    detection: DetectorOutput | None = None
+    refit: RefitResult | None = None
+    warnings: list[str] = field(default_factory=list)
+    events: list[str] = field(default_factory=list)  # worth a line in the log, not a warning
+    skipped: str | None = None  # why the sample was not used
+
+
+@dataclass
+class _Sample:
+    stamp_ns: int
+    t: float
+    p: FloatArray
+    v: FloatArray
+    q: FloatArray
+    w: FloatArray
+    omega: FloatArray
+    a: FloatArray | None
+
+
+class FlightMonitor:
+    """Identifier + diagnoser + record for one vehicle (module docstring)."""
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        effect_ids: list[str],
+        online: OnlineSettings | None = None,
+        observer: ObserverSettings | None = None,
+        detection: DetectionSettings | None = None,
+        settings: MonitorSettings | None = None,
+        record: FlightRecord | None = None,
+    ):
+        self.airframe = airframe
+        self.settings = settings or MonitorSettings()
+        self.identifier = OnlineIdentifier(airframe, effect_ids, online)
+        self.diagnoser = RotorDiagnoser(self.identifier.model(), 1, observer, detection)
+        self.record = record
+        self._speeds: deque[tuple[int, FloatArray]] = deque(maxlen=64)
+        self._last_state_ns: int | None = None
+        self._last_processed: _Sample | None = None
+        self._previous: _Sample | None = None  # two samples back, for the central difference
+        self._origin_ns: int | None = None
+        self._next_due_ns = 0
+        self._waiting: deque[_Sample] = deque()  # state samples waiting for their rotor speeds
+        self._was_resting = False
+        self._warnings: list[str] = []  # said with the next result
+        self.notes: list[str] = []
+        if record is not None:
+            self._resume(record)
+
+    # ------------------------------------------------------------------ resume and state
+
+    def _resume(self, record: FlightRecord) -> None:
+        resumed = record.resume()
+        self.notes += resumed.notes
+        if resumed.state is not None:
+            self._restore(resumed.state)
+        if resumed.log is not None:
+            rows = window_rows(resumed.log, self.airframe.n_rotors, self.identifier.settings.window_s)
+            if rows is not None:
+                euler = np.column_stack([rows["roll"], rows["pitch"], rows["yaw"]])
+                self.identifier.load_window(
+                    rows["t"],
+                    np.column_stack([rows["x"], rows["y"], rows["z"]]),
+                    np.column_stack([rows["vx"], rows["vy"], rows["vz"]]),
+                    euler_to_matrix(euler),
+                    np.column_stack([rows["p"], rows["q"], rows["r"]]),
+                    np.column_stack([rows[f"omega_{k}"] for k in range(1, self.airframe.n_rotors + 1)]),
+                    np.column_stack([rows["ax"], rows["ay"], rows["az"]]),
+                )
+                self.notes.append(f"window refilled with {len(rows['t'])} recorded samples")
+                self.diagnoser.set_model(self.identifier.model())
+
+    def _restore(self, state: dict[str, FloatArray]) -> None:
+        identifier_state = {k[11:]: v for k, v in state.items() if k.startswith("identifier_")}
+        try:
+            self.identifier.resume(identifier_state)
+        except RlsError as error:
+            self.notes.append(f"saved estimate not used: {error}")
+        else:
+            self.diagnoser.set_model(self.identifier.model())
+            self.notes.append(f"estimate resumed after {self.identifier.rls.n_updates} samples")
+        if "detector_baseline" in state and "detector_mad" in state:
+            try:
+                self.diagnoser.detector.resume(
+                    {"baseline": state["detector_baseline"], "mad": state["detector_mad"]}
+                )
+                self.notes.append("detector resumed with its learnt noise (no warm-up)")
+            except ValueError as error:
+                self.notes.append(f"saved detector state not used: {error}")
+
+    def learnt_state(self) -> dict[str, FloatArray]:
+        """What the record keeps of the learnt state (identifier, detector noise and bias)."""
+        state = {f"identifier_{key}": value for key, value in self.identifier.state().items()}
+        if self.diagnoser.detector.warmed_up:
+            learnt = self.diagnoser.detector.learnt()
+            state["detector_baseline"] = learnt["baseline"]
+            state["detector_mad"] = learnt["mad"]
+        return state
+
+    def flush_record(self) -> None:
+        """Write what the record holds so far (the node does it every second)."""
+        if self.record is not None:
+            self.record.flush(self.learnt_state())
+
+    # ------------------------------------------------------------------ inputs
+
+    def rotor_speeds(self, stamp_ns: int, speeds: FloatArray) -> list[StepResult] | Refused:
+        """Take a validated rotor-speed message (N speeds [rad/s]); refuse a repeated or older stamp.
+
+        Returns what the state samples that waited for these speeds produced.
+        """
+        if self._speeds and stamp_ns <= self._speeds[-1][0]:
+            kind = "duplicated stamp" if stamp_ns == self._speeds[-1][0] else "out-of-order stamp"
+            return Refused(kind, f"motor_speeds stamp {stamp_ns} ns, previous {self._speeds[-1][0]} ns")
+        self._speeds.append((stamp_ns, np.asarray(speeds, dtype=float).copy()))
+        return self._drain()
+
+    def _speeds_for(self, stamp_ns: int) -> FloatArray | None:
+        """The speeds in force at ``stamp_ns``: the newest reported at or before it, if recent enough."""
+        for stamp, speeds in reversed(self._speeds):
+            if stamp <= stamp_ns:
+                return speeds if (stamp_ns - stamp) * 1e-9 <= self.settings.motor_speed_max_age_s else None
+        return None
+
+    def state(
+        self,
+        stamp_ns: int,
+        p_WB_W: FloatArray,
+        v_WB_W: FloatArray,
+        q_WB: FloatArray,
+        w_WB_B: FloatArray,
+        a_W: FloatArray | None = None,
+    ) -> list[StepResult] | Refused:
+        """Take a validated state sample (odometry, or pose + IMU with ``a_W``); see the module docstring.
+
+        A sample waits until rotor speeds stamped at or after it have arrived (so that the two topics
+        may arrive in any order and in bursts), or until it is ``max_wait_s`` older than the newest state;
+        returns what the samples processed now produced (often one, none while waiting).
+        """
+        if self._last_state_ns is not None and stamp_ns <= self._last_state_ns:
+            kind = "duplicated stamp" if stamp_ns == self._last_state_ns else "out-of-order stamp"
+            return Refused(kind, f"state stamp {stamp_ns} ns, previous {self._last_state_ns} ns")
+        values = [np.asarray(x, dtype=float) for x in (p_WB_W, v_WB_W, q_WB, w_WB_B)]
+        if a_W is not None:
+            values.append(np.asarray(a_W, dtype=float))
+        if not all(np.all(np.isfinite(x)) for x in values):
+            return Refused("non-finite state", f"stamp {stamp_ns} ns: {[x.tolist() for x in values]}")
+        self._warnings += [] if self._origin_ns is not None else self._start_clock(stamp_ns)
+        self._last_state_ns = stamp_ns
+        if stamp_ns < self._next_due_ns:
+            return []
+        # Due times on a grid of the sample period, so that 250 Hz odometry gives 100 samples per second
+        # on average (8 and 12 ms apart) rather than one every 12 ms.
+        period_ns = round(NS / self.settings.sample_rate_hz)
+        self._next_due_ns = max(self._next_due_ns + period_ns, stamp_ns + period_ns // 2)
+        assert self._origin_ns is not None
+        self._waiting.append(
+            _Sample(
+                stamp_ns,
+                (stamp_ns - self._origin_ns) * 1e-9,
+                values[0],
+                values[1],
+                values[2] / np.linalg.norm(values[2]),
+                values[3],
+                np.zeros(0),
+                values[4] if a_W is not None else None,
+            )
+        )
+        return self._drain()
+
+    def _drain(self) -> list[StepResult]:
+        """Process the waiting state samples whose rotor speeds are known (or that waited long enough)."""
+        results = []
+        newest_speeds = self._speeds[-1][0] if self._speeds else None
+        patience_ns = round(self.settings.max_wait_s * NS)
+        while self._waiting:
+            sample = self._waiting[0]
+            ready = newest_speeds is not None and newest_speeds >= sample.stamp_ns
+            assert self._last_state_ns is not None
+            if not ready and self._last_state_ns - sample.stamp_ns <= patience_ns:
+                break
+            self._waiting.popleft()
+            results.append(self._process(sample))
+        if results and self._warnings:
+            results[0].warnings[:0] = self._warnings
+            self._warnings = []
+        return results
+
+    def _process(self, sample: _Sample) -> StepResult:
+        result = StepResult(sample.t, sample.stamp_ns)
+        omega = self._speeds_for(sample.stamp_ns)
+        if omega is None:
+            result.skipped = "no recent motor_speeds"
+            return result
+        sample.omega = omega
+        if self._resting(sample):
+            if not self._was_resting:
+                result.events.append(
+                    f"resting at t = {sample.stamp_ns * 1e-9:.2f} s (thrust below the weight, not moving): "
+                    "no identification or detection until it flies"
+                )
+            self._was_resting = True
+            self._last_processed = self._previous = None
+            result.skipped = "resting"
+            return result
+        if self._was_resting:
+            self._was_resting = False
+            self.diagnoser.restart_observer(sample.t)
+            result.events.append(f"flying from t = {sample.stamp_ns * 1e-9:.2f} s: observer restarted")
+        last = self._last_processed
+        dt = 0.0 if last is None else (sample.stamp_ns - last.stamp_ns) * 1e-9
+        if last is not None and dt > self.settings.max_gap_s:
+            result.warnings.append(
+                f"gap of {dt:.3f} s in the state messages before t = {sample.stamp_ns * 1e-9:.3f} s: "
+                "observer restarted, "
+                "no derivative taken across it"
+            )
+            self.diagnoser.restart_observer(sample.t)
+            self._previous = None
+            last = None
+        self._diagnose(sample, dt, result)
+        self._identify(sample, last, result)
+        self._previous = last
+        self._last_processed = sample
+        return result
+
+    def _resting(self, sample: _Sample) -> bool:
+        """On the ground (or held): the rotors carry less than the weight and nothing moves.
+
+        The ground's reaction is in no model: samples taken then would teach the identifier a wrong
+        thrust and show the detector a thrust loss that is the ground's doing.
+        """
+        model = self.diagnoser.model
+        thrust = model.airframe.k_f_N_s2 * float(sample.omega @ sample.omega)
+        weight = float(np.atleast_1d(model.mass_kg)[0]) * model.gravity_m_s2
+        still = (
+            float(np.linalg.norm(sample.v)) < RESTING_SPEED_M_S
+            and float(np.linalg.norm(sample.w)) < RESTING_RATE_RAD_S
+        )
+        return thrust < RESTING_THRUST_SHARE * weight and still
+
+    def _start_clock(self, stamp_ns: int) -> list[str]:
+        """Times are seconds since the record's origin (resumed) or the first sample."""
+        record = self.record
+        if record is None:
+            self._origin_ns = stamp_ns
+            return []
+        if record.last_stamp_ns is not None and stamp_ns <= record.last_stamp_ns:
+            record.start_new_segment()
+            self.identifier.reset_window()
+            self._origin_ns = stamp_ns
+            record.stamp_origin_ns = stamp_ns
+            return [
+                f"stamps restart before the end of the record ({stamp_ns} <= {record.last_stamp_ns} ns): "
+                "the clock "
+                "went back (a restarted simulator?); new record segment, refit window cleared, estimates kept"
+            ]
+        if record.stamp_origin_ns is None:
+            record.stamp_origin_ns = stamp_ns
+        self._origin_ns = record.stamp_origin_ns
+        return []
+
+    def _diagnose(self, sample: _Sample, dt: float, result: StepResult) -> None:
+        R = quat_to_matrix(sample.q)[None]
+        out = self.diagnoser.update(
+            sample.t,
+            dt if dt > 0 else 1.0 / self.settings.sample_rate_hz,
+            sample.p[None],
+            sample.v[None],
+            R,
+            sample.w[None],
+            sample.omega[None],
+            None if sample.a is None else sample.a[None],
+        )
+        result.accel_residual_W = out.residuals.accel_W[0].copy()
+        result.detection = out.detection
+
+    def _identify(self, sample: _Sample, last: _Sample | None, result: StepResult) -> None:
+        """Feed the identifier: this sample with the IMU acceleration, or the one before (speed change)."""
+        if sample.a is not None:
+            target, a_W = sample, sample.a
+        else:
+            previous = self._previous
+            if last is None or previous is None:
+                return
+            target = last
+            a_W = (sample.v - previous.v) / ((sample.stamp_ns - previous.stamp_ns) * 1e-9)
+        if bool(self.diagnoser.any_suspicion[0]):
+            return
+        R = quat_to_matrix(target.q)
+        self.identifier.add(target.t, target.p, target.v, R, target.w, target.omega, a_W)
+        if self.record is not None:
+            self.record.append(
+                target.stamp_ns, quat_to_euler(target.q), target.p, target.v, a_W, target.omega, target.w
+            )
+        if self.identifier.refit_due(target.t):
+            refit = self.identifier.refit()
+            if refit is not None:
+                result.refit = refit
+                self.diagnoser.set_model(self.identifier.model())
+
+    # ------------------------------------------------------------------ outputs
+
+    def estimates(self) -> tuple[Estimate, ...]:
+        """The running estimates with their standard deviations."""
+        return self.identifier.estimates()
+
+    def reports(self) -> list[RotorReport]:
+        """One readable status per rotor."""
+        return rotor_reports(
+            self.diagnoser.last,
+            self.airframe.n_rotors,
+            self.diagnoser.partners,
+            self.diagnoser.detector.settings.error_below_effectiveness,
+            clock_offset_s=self.clock_offset_s,
+        )
+
+    @property
+    def clock_offset_s(self) -> float:
+        """Stamp [s] of time 0 of the monitor's times (t of results, refits, the record)."""
+        return (self._origin_ns or 0) * 1e-9
+
+    def set_detection_settings(self, settings: DetectionSettings) -> None:
+        """Change the thresholds at run time (``ros2 param set``)."""
+        self.diagnoser.set_detection_settings(settings)

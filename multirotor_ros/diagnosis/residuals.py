@@ -1,0 +1,204 @@
+"""Residuals from the identified model: what the vehicle does that the model does not explain.
+
+A super-twisting observer (:mod:`multirotor_ros.diagnosis.observer`) runs on six channels, the world
+velocity v_WB_W and the body rate w_WB_B; the model gives their derivatives from the measured state and
+rotor speeds, and the observer's equivalent injection estimates what is missing:
+
+- ``accel_W`` (B, 3): measured minus modelled world force per unit mass [m/s²] (the ``residuals`` topic);
+- ``wrench`` (B, 4): the same as a body wrench the rotors could have made, (F_z [N] along body z,
+  τ_x, τ_y, τ_z [N m] in body FLU): m e_zᵀ accel_W and I times the angular-acceleration residual.
+
+A rotor i that gives only e_i of its thrust (and drag torque) leaves the wrench residual
+-(1 - e_i) s_i, where the rotor's signature s_i = (T_i, T_i y_i, -T_i x_i, σ_i k_t ω_i² f_i) is its own
+contribution to the wrench, computed here from the model's per-rotor thrust T_i (all thrust effects
+included) and drag torque (σ_i the spin sign, f_i the model's torque factor). The controller
+compensates a fault within a fraction of a second, so position and attitude errors vanish; the wrench
+residual does not, because the model is fed the speeds the rotors actually turn at.
+
+Observer gains are scaled per channel to what one stopped rotor does at hover (its thrust over the
+mass, its torques over the inertia), so that every channel converges to a stopped rotor in
+``convergence_time_s`` and chatters by the same fraction of that signal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from multirotor_ros.diagnosis.observer import SuperTwistingObserver, levant_gains
+from multirotor_ros.model.effects import EffectContext
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import FloatArray
+
+
+@dataclass(frozen=True)
+class ObserverSettings:
+    """How fast the observer follows a step: a stopped rotor is reached in about ``convergence_time_s``."""
+
+    convergence_time_s: float = 0.15  # [s]
+    filter_time_constant_s: float = 0.03  # [s] low-pass on the equivalent injection (sampling chatter)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.convergence_time_s) and self.convergence_time_s > 0):
+            raise ValueError(f"convergence_time_s must be > 0, got {self.convergence_time_s}")
+        if not (np.isfinite(self.filter_time_constant_s) and self.filter_time_constant_s >= 0):
+            raise ValueError(f"filter_time_constant_s must be >= 0, got {self.filter_time_constant_s}")
+
+
+@dataclass(frozen=True)
+class ResidualSample:
+    """One sample of residuals for a batch of B vehicles (see the module docstring)."""
+
+    accel_W: FloatArray  # (B, 3) [m/s²] world ENU
+    angular_accel_B: FloatArray  # (B, 3) [rad/s²] body FLU
+    wrench: FloatArray  # (B, 4) F_z [N], tau_B [N m]
+    signatures: FloatArray  # (B, 4, N) each rotor's own wrench contribution
+    model_change_wrench: FloatArray | None = None  # (B, 4) residual shift from a model swap at this sample
+
+
+def stopped_rotor_scales(model: Model) -> tuple[FloatArray, FloatArray]:
+    """What one stopped rotor does at hover: (6,) observer channel scale and (4,) wrench scale.
+
+    Observer channels: thrust / mass on each world axis (the thrust direction tilts), then the largest
+    single-rotor torque over the inertia about each body axis. Wrench scale: the largest |s_i| per channel.
+    """
+    airframe = model.airframe
+    omega_hover = model.hover_speed_rad_s()
+    signature = airframe.allocation * omega_hover**2  # (4, N) at hover
+    wrench_scale = np.abs(signature).max(axis=1)
+    mass = float(np.atleast_1d(model.mass_kg)[0])
+    inertia = np.diag(model.inertia_kg_m2)
+    channel_scale = np.concatenate([np.full(3, wrench_scale[0] / mass), wrench_scale[1:] / inertia])
+    return channel_scale, wrench_scale
+
+
+class WrenchResidualGenerator:
+    """Feeds the observer from measurements and turns its estimate into world and wrench residuals.
+
+    Two ways to measure the translational part: from the velocity (odometry), through the
+    super-twisting observer like the body rates; or, when a measured acceleration is given (an IMU's
+    specific force rotated to world, gravity removed), directly as a_W - a_model, low-passed with the
+    same filter as the observer's estimate. The rotational part always comes from the body rates.
+    """
+
+    def __init__(self, model: Model, settings: ObserverSettings | None = None):
+        self.settings = settings or ObserverSettings()
+        channel_scale, self.wrench_scale = stopped_rotor_scales(model)
+        lambda_gain, alpha_gain = levant_gains(channel_scale / self.settings.convergence_time_s)
+        tau = self.settings.filter_time_constant_s
+        self.translational = SuperTwistingObserver(lambda_gain[:3], alpha_gain[:3], tau)
+        self.rotational = SuperTwistingObserver(lambda_gain[3:], alpha_gain[3:], tau)
+        self._measured_accel_residual: FloatArray | None = None
+        self._previous_model: Model | None = None
+        self.set_model(model)
+
+    def set_model(self, model: Model) -> None:
+        """Use another model (an identified one) from the next :meth:`update` on.
+
+        The observer's estimate of the measured derivative, f + z, must not jump because f changed:
+        at the next sample z is shifted by f_old - f_new, and that sample's ``model_change_wrench``
+        says by how much the wrench residual moved, so that a detector can move its baseline with it.
+        """
+        current = getattr(self, "model", None)
+        if current is not None and current.n_rotors != model.n_rotors:
+            raise ValueError(
+                f"the new model has {model.n_rotors} rotors, the observer was built for {current.n_rotors}"
+            )
+        if current is not None and self._previous_model is None:
+            self._previous_model = current
+        self.model = model
+        airframe = model.airframe
+        self._positions = airframe.rotor_positions_m
+        self._drag = airframe.spin_signs * airframe.k_t_N_m_s2
+
+    def reset(self) -> None:
+        """Forget the observer's state (after a gap in the data): the next :meth:`update` starts it again."""
+        self.translational.y_hat = None
+        self.rotational.y_hat = None
+        self._measured_accel_residual = None
+
+    @property
+    def started(self) -> bool:
+        """Whether the observer has had a measurement since its start or last reset."""
+        return self.rotational.started
+
+    def signatures(self, thrust: FloatArray, torque_factor: FloatArray, omega: FloatArray) -> FloatArray:
+        """(B, 4, N) per-rotor wrench contributions from per-rotor thrust (B, N) and drag-torque factor."""
+        return np.stack(
+            [
+                thrust,
+                thrust * self._positions[:, 1],
+                -thrust * self._positions[:, 0],
+                self._drag * omega**2 * torque_factor,
+            ],
+            axis=1,
+        )
+
+    def update(
+        self,
+        t: ArrayLike,
+        dt_s: float,
+        p_WB_W: FloatArray,
+        v_WB_W: FloatArray,
+        R_WB: FloatArray,
+        w_WB_B: FloatArray,
+        omega: FloatArray,
+        a_W: FloatArray | None = None,
+    ) -> ResidualSample:
+        """Residuals at a new measurement (all arrays batched over B); ``dt_s`` since the previous one.
+
+        ``a_W``: measured acceleration (world, gravity excluded); without it the velocity is used.
+        """
+        ctx = self.model.context(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega)
+        a_model_W, w_dot_model_B = self.model.accelerations(ctx)
+        model_change = None
+        if self._previous_model is not None:
+            model_change = self._carry_over(ctx, a_model_W, w_dot_model_B)
+        angular_accel_B = self.rotational.update(dt_s, w_WB_B, w_dot_model_B)
+        if a_W is None:
+            accel_W = self.translational.update(dt_s, v_WB_W, a_model_W)
+        else:
+            raw = a_W - a_model_W
+            if self._measured_accel_residual is None or self.settings.filter_time_constant_s == 0:
+                self._measured_accel_residual = raw
+            else:
+                blend = 1.0 - np.exp(-dt_s / self.settings.filter_time_constant_s)
+                self._measured_accel_residual = self._measured_accel_residual + blend * (
+                    raw - self._measured_accel_residual
+                )
+            accel_W = self._measured_accel_residual
+        mass = np.broadcast_to(np.asarray(self.model.mass_kg, dtype=float), (accel_W.shape[0],))
+        thrust_residual = mass * np.einsum("bi,bi->b", accel_W, ctx.e_z_W)
+        wrench = np.concatenate(
+            [thrust_residual[:, None], angular_accel_B @ self.model.inertia_kg_m2.T], axis=1
+        )
+        thrust, torque_factor = self.model.rotor_thrusts(ctx)
+        return ResidualSample(
+            accel_W=accel_W,
+            angular_accel_B=angular_accel_B,
+            wrench=wrench,
+            signatures=self.signatures(thrust, torque_factor, omega),
+            model_change_wrench=model_change,
+        )
+
+    def _carry_over(
+        self, ctx: EffectContext, a_new_W: FloatArray, w_dot_new_B: FloatArray
+    ) -> FloatArray | None:
+        """Shift the observers by f_old - f_new at this sample; the (B, 4) wrench of that shift."""
+        assert self._previous_model is not None
+        a_old_W, w_dot_old_B = self._previous_model.accelerations(ctx)
+        self._previous_model = None
+        if not self.started:
+            return None
+        da_W = a_old_W - a_new_W
+        dw_B = w_dot_old_B - w_dot_new_B
+        for observer, shift in ((self.translational, da_W), (self.rotational, dw_B)):
+            if observer.started:
+                observer.shift_model(shift)
+        if self._measured_accel_residual is not None:
+            self._measured_accel_residual = self._measured_accel_residual + da_W
+        mass = np.broadcast_to(np.asarray(self.model.mass_kg, dtype=float), (da_W.shape[0],))
+        thrust_shift = mass * np.einsum("bi,bi->b", da_W, ctx.e_z_W)
+        return np.concatenate([thrust_shift[:, None], dw_B @ self.model.inertia_kg_m2.T], axis=1)

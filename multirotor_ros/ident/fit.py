@@ -1,0 +1,816 @@
+"""Fit effect parameters to a log: exact least squares where they enter linearly, searches for the rest.
+
+The criterion is seed 1's mean square error (eq. 11) of the model's output, the world acceleration,
+over the log's usable samples, in equation-error form m (a + g e_z) = F(theta) (:mod:`.regressors`).
+The three axes are stacked and weighted by the inverse of their residual variance (a first unweighted
+fit estimates it): an axis with noisy accelerations does not drown the others, as seed 1 fits per axis.
+
+- Linear parameters (k_f, drag coefficients, k_h, k_f1, eta_lower, k_v, dm_kg, f_*, and the fault's
+  effectiveness once its rotor and onset are fixed) are solved exactly, within their physical bounds
+  (:mod:`.parameters`); the bilinear pair k_f x eta_lower by Gauss–Newton iterations of that solve.
+- Non-linear parameters are searched with the linear ones solved inside each evaluation (variable
+  projection): ``rotor_radius_m`` (ground_effect) and ``tau_s`` (motor_lag) on a logarithmic grid, then
+  bounded Brent refinement; ``actuator_fault`` by an exhaustive search over rotor x onset sample, exact for
+  the linear parameters through suffix sums, helped by the torque balance when the log allows it (a rotor
+  that lost thrust unbalances the torques the most clearly); effectiveness is then linear.
+- Standard deviations: the sandwich (Newey–West) covariance with a bandwidth taken from the residuals'
+  autocorrelation, because closed-loop flight residuals are not white; the white-noise formula would
+  give smaller, overconfident values (the inflation is reported in the notes).
+- A parameter whose standard deviation exceeds half of max(|value - neutral|, scale) is not identifiable
+  on this log (:mod:`.parameters`): it is held (at its starting value), the others are refitted, and the
+  reason is reported: nearly collinear with another parameter, or the regime that would excite it absent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import lsq_linear, minimize_scalar
+
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef, parameter_spec
+from multirotor_ros.ident.regressors import (
+    CONDITIONALLY_LINEAR,
+    ForceRegressor,
+    is_bilinear,
+    parameter_value,
+    with_values,
+)
+from multirotor_ros.ident.samples import FlightSamples, MeasurementChain, describe_range
+from multirotor_ros.model.airframe import Airframe
+from multirotor_ros.model.effects import EFFECTS, EffectContext
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import FloatArray
+
+Progress = Callable[[str], None]
+RADIUS = ("ground_effect", "rotor_radius_m")
+TAU = ("motor_lag", "tau_s")
+FAULT_MOTOR = ("actuator_fault", "motor")
+FAULT_ONSET = ("actuator_fault", "t_fault_s")
+FAULT_EFFECTIVENESS = ("actuator_fault", "effectiveness")
+SEARCH_GRIDS = {RADIUS: np.geomspace(0.01, 1.0, 15), TAU: np.geomspace(0.002, 0.3, 15)}
+NEUTRAL_SEARCH_VALUE = {RADIUS: 1e-6, TAU: 1e-4}
+MIN_FAULT_DURATION_S = 0.3
+IDENTIFIABLE_RELATIVE_STD = 0.5
+COLLINEAR_CORRELATION = 0.95
+EXACTLY_COLLINEAR = 0.9995
+
+
+def _is_linear(ref: ParameterRef) -> bool:
+    effect_id, name = ref
+    if effect_id == AIRFRAME:
+        return True
+    return name not in EFFECTS[effect_id].nonlinear_parameters or ref in CONDITIONALLY_LINEAR
+
+
+@dataclass
+class Design:
+    """y (T, 3), Phi (T, 3, P) over all rows of a log for one set of non-linear values (chained)."""
+
+    y: FloatArray
+    Phi: FloatArray
+    regressor: ForceRegressor
+    model: Model
+    ctx: EffectContext
+
+
+@dataclass
+class FitResult:
+    """A fitted model and what is known about its parameters."""
+
+    model: Model
+    free: list[ParameterRef]
+    values: dict[ParameterRef, float]
+    std: dict[ParameterRef, float | None]
+    not_identifiable: dict[ParameterRef, str]
+    residual: FloatArray  # (T, 3) measured - modelled acceleration [m/s^2]; NaN outside the fitted rows
+    rows: FloatArray  # (T,) bool, the samples fitted
+    weights: FloatArray  # (3,) per-axis weights used
+    notes: list[str] = field(default_factory=list)
+    fault_candidates: list[tuple[int, float, float]] = field(default_factory=list)  # (motor, onset, score)
+
+    def mse(self, rows: FloatArray | None = None) -> FloatArray:
+        """(3,) mean square acceleration error per axis over ``rows`` (default: the fitted ones)."""
+        use = self.rows if rows is None else rows
+        return np.mean(self.residual[use] ** 2, axis=0)
+
+    def named_values(self) -> dict[str, float]:
+        """Fitted values by parameter name (effects.md names; k_f as ``k_f_N_s2``)."""
+        return {name: value for (_, name), value in self.values.items()}
+
+
+# ----------------------------------------------------------------------------------------------
+# designs and linear solves
+
+
+def _model_key(model: Model, skip: Sequence[ParameterRef]) -> tuple:
+    """Hashable identity of a model's structure and parameter values, without the ``skip`` ones."""
+    skipped = set(skip)
+    values: list[object] = [model.airframe.name, model.gravity_m_s2]
+    if (AIRFRAME, K_F) not in skipped:
+        values.append(model.airframe.k_f_N_s2)
+    for effect in model.effects:
+        values.append(effect.id)
+        values += [
+            (name, float(v)) for name, v in effect.parameters.items() if (effect.id, name) not in skipped
+        ]
+    return tuple(values)
+
+
+DESIGN_CACHE_SIZE = 48
+
+
+def build_design(samples: FlightSamples, model: Model, linear: Sequence[ParameterRef]) -> Design:
+    """The chained regression of ``linear`` parameters for ``model`` over every row of ``samples``.
+
+    Designs are cached on the samples: a search revisits grid values, cross-validation folds share
+    their designs, and a linear parameter's value does not change its design (y = Phi theta holds for any).
+    """
+    key = (_model_key(model, () if is_bilinear(linear) else linear), tuple(linear))
+    cache = samples.design_cache
+    if key in cache:
+        return cache[key]
+    regressor = ForceRegressor(model, linear)
+    lag = model.effect("motor_lag")
+    omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
+    ctx = samples.context(model, omega)
+    s, F0, dF = regressor.parts(ctx, samples.a_W)
+    if samples.chain.order > 0:
+        F0 = samples.through_chain(F0)
+        dF = samples.through_chain(dF)
+    y, Phi = regressor.assemble(s, F0, dF)
+    if samples.nuisance is not None:
+        y, Phi = _without_nuisance(samples, y, Phi)
+    design = Design(y, Phi, regressor, model, ctx)
+    if len(cache) >= DESIGN_CACHE_SIZE:
+        cache.pop(next(iter(cache)))
+    cache[key] = design
+    return design
+
+
+def _without_nuisance(
+    samples: FlightSamples, y: FloatArray, Phi: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The y and Phi minus their least-squares projection on the nuisance columns (Frisch-Waugh-Lovell).
+
+    Fitting theta to the projected problem gives the same theta and residual as fitting theta together with
+    the nuisance parameters, so every later step (bounds, searches, covariance) need not know about them.
+    """
+    key = ("nuisance basis",)
+    if key not in samples.design_cache:
+        # Zero outside the usable rows, so that projecting every row leaves the unusable ones as they are.
+        masked = np.where(samples.valid[:, None, None], samples.nuisance, 0.0)
+        samples.design_cache[key] = np.linalg.qr(masked.reshape(-1, masked.shape[2]))[0]
+    q = samples.design_cache[key]
+
+    def project(values: FloatArray) -> FloatArray:
+        flat = values.reshape(q.shape[0], -1)
+        # Unusable rows may hold NaN (filter ends); their basis rows are zero, so they stay as they are.
+        return (flat - q @ (q.T @ np.nan_to_num(flat))).reshape(values.shape)
+
+    return project(y), project(Phi)
+
+
+def nuisance_estimate(samples: FlightSamples, residual_before_projection: FloatArray) -> FloatArray:
+    """Least-squares nuisance parameters explaining a (force) residual over the usable rows."""
+    N = samples.nuisance
+    rows = samples.valid
+    return np.linalg.lstsq(
+        N[rows].reshape(-1, N.shape[2]), residual_before_projection[rows].reshape(-1), rcond=None
+    )[0]
+
+
+def _weighted_system(design: Design, rows: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+    sw = np.sqrt(weights)
+    y = design.y[rows] * sw[None, :]
+    A = (design.Phi[rows] * sw[None, :, None]).reshape(y.size, design.Phi.shape[2])
+    b = y.reshape(-1)
+    return A, b
+
+
+def solve_bounded(A: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatArray) -> FloatArray:
+    """Argmin |A theta - b| within bounds; columns are scaled first (k_f ~ 1e-5 beside f_x ~ 1).
+
+    Normal equations on the scaled columns (a few parameters, well scaled: their condition number squared
+    stays far from double precision's limit); a bound that the free solution crosses is enforced by BVLS
+    on the Cholesky factor, which has the same minimiser.
+    """
+    n_par = A.shape[1]
+    if n_par == 0:
+        return np.zeros(0)
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    As = A / scale
+    G = As.T @ As
+    h = As.T @ b
+    try:
+        L = np.linalg.cholesky(G)
+        theta_s = np.linalg.solve(L.T, np.linalg.solve(L, h))
+        R, c = L.T, np.linalg.solve(L, h)
+    except np.linalg.LinAlgError:
+        theta_s = np.linalg.lstsq(As, b, rcond=1e-10)[0]
+        Q, R = np.linalg.qr(As)
+        c = Q.T @ b
+    theta = theta_s / scale
+    if np.all(theta >= lower) and np.all(theta <= upper):
+        return theta
+    lo = np.where(np.isfinite(lower), lower * scale, -np.inf)
+    hi = np.where(np.isfinite(upper), upper * scale, np.inf)
+    result = lsq_linear(R, c, bounds=(lo, hi), method="bvls" if n_par <= 10 else "trf")
+    return result.x / scale
+
+
+class LinearSolver:
+    """Solves the linear parameters of designs on a set of rows, with bounds and per-axis weights."""
+
+    def __init__(self, refs: Sequence[ParameterRef], airframe: Airframe, held: dict[ParameterRef, float]):
+        self.refs = list(refs)
+        specs = [parameter_spec(r, airframe) for r in self.refs]
+        self.lower = np.array([s.lower for s in specs])
+        self.upper = np.array([s.upper for s in specs])
+        self.held = held
+
+    def solve(self, design: Design, rows: FloatArray, weights: FloatArray) -> FloatArray:
+        """Fitted theta for the design's parameter list (held ones fixed)."""
+        free = [j for j, r in enumerate(self.refs) if r not in self.held]
+        theta = design.regressor.theta0.copy()
+        for j, r in enumerate(self.refs):
+            if r in self.held:
+                theta[j] = self.held[r]
+        A, b = _weighted_system(design, rows, weights)
+        fixed = [j for j in range(len(self.refs)) if j not in free]
+        if fixed:
+            b = b - A[:, fixed] @ theta[fixed]
+        theta[free] = solve_bounded(A[:, free], b, self.lower[free], self.upper[free])
+        return theta
+
+
+def residual_force(design: Design, theta: FloatArray) -> FloatArray:
+    """(T, 3) y - Phi theta [N]."""
+    return design.y - design.Phi @ theta
+
+
+def sse(design: Design, theta: FloatArray, rows: FloatArray, weights: FloatArray) -> float:
+    """Weighted sum of squared force residuals over ``rows``."""
+    r = residual_force(design, theta)[rows]
+    return float(np.sum(r * r * weights[None, :]))
+
+
+# ----------------------------------------------------------------------------------------------
+# the fitter
+
+
+class Fitter:
+    """Fits ``free`` parameters of ``model`` to ``samples`` (see the module docstring)."""
+
+    def __init__(
+        self,
+        samples: FlightSamples,
+        model: Model,
+        free: Sequence[ParameterRef],
+        rows: FloatArray | None = None,
+        weights: FloatArray | None = None,
+        progress: Progress | None = None,
+        held: dict[ParameterRef, float] | None = None,
+    ):
+        self.samples = samples
+        self.start_model = model
+        self.free = [tuple(r) for r in free]  # type: ignore[misc]
+        for ref in self.free:
+            parameter_value(model, ref)  # names the missing effect or parameter
+        self.rows = samples.valid.copy() if rows is None else (samples.valid & rows)
+        self.progress = progress
+        self.held: dict[ParameterRef, float] = dict(held or {})
+        self.linear = [r for r in self.free if _is_linear(r)]
+        self.searched = [r for r in self.free if not _is_linear(r)]
+        self.solver = LinearSolver(self.linear, model.airframe, self.held)
+        self.weights = np.ones(3) if weights is None else np.asarray(weights, dtype=float)
+        self._given_weights = weights is not None
+        self.fault_candidates: list[tuple[int, float, float]] = []
+        self.fault_profile: tuple[FloatArray, FloatArray] | None = None
+
+    def _say(self, message: str) -> None:
+        if self.progress is not None:
+            self.progress(message)
+
+    # -- linear part --------------------------------------------------------------------------
+
+    def solve_linear(self, model: Model, rows: FloatArray | None = None) -> tuple[Design, FloatArray, float]:
+        """Design and fitted linear parameters for the non-linear values in ``model``."""
+        use = self.rows if rows is None else rows
+        design = build_design(self.samples, model, self.linear)
+        theta = self.solver.solve(design, use, self.weights)
+        if design.regressor.bilinear:
+            for _ in range(30):
+                previous = theta
+                model = with_values(model, dict(zip(self.linear, theta.tolist(), strict=True)))
+                design = build_design(self.samples, model, self.linear)
+                theta = self.solver.solve(design, use, self.weights)
+                if np.allclose(theta, previous, rtol=1e-9, atol=0.0):
+                    break
+        return design, theta, sse(design, theta, use, self.weights)
+
+    def estimate_weights(self, model: Model) -> None:
+        """Per-axis weights 1/variance from an unweighted fit of ``model`` (normalised to mean 1)."""
+        if self._given_weights:
+            return
+        self.weights = np.ones(3)
+        design, theta, _ = self.solve_linear(model)
+        variance = np.mean(residual_force(design, theta)[self.rows] ** 2, axis=0)
+        variance = np.maximum(variance, 1e-12 * max(variance.max(), 1e-300))
+        w = 1.0 / variance
+        self.weights = w / w.mean()
+
+    # -- searches ------------------------------------------------------------------------------
+
+    def _scalar_search(self, model: Model, ref: ParameterRef, local: bool = False) -> Model:
+        """Grid then bounded Brent search of one continuous non-linear parameter (linear ones inside)."""
+        if ref in self.held:
+            return with_values(model, {ref: self.held[ref]})
+        label = f"{ref[0]}.{ref[1]}"
+
+        def cost(value: float) -> float:
+            return self.solve_linear(with_values(model, {ref: value}))[2]
+
+        grid = SEARCH_GRIDS[ref]
+        if ref == TAU:
+            # A lag shorter than half a sample interval cannot be told from smoothing the speed sensor's noise
+            # (which also lowers the error): the search starts there.
+            grid = np.geomspace(max(grid[0], 0.5 * self.samples.dt), grid[-1], grid.size)
+        values = [NEUTRAL_SEARCH_VALUE[ref], *grid.tolist()]
+        if local:
+            start = parameter_value(model, ref)
+            if start > 2 * NEUTRAL_SEARCH_VALUE[ref]:
+                values = [
+                    NEUTRAL_SEARCH_VALUE[ref],
+                    *np.geomspace(max(start / 2, grid[0]), start * 2, 5).tolist(),
+                ]
+        costs = []
+        for i, value in enumerate(values):
+            costs.append(cost(value))
+            if i % 5 == 4:
+                self._say(f"{label}: grid {i + 1}/{len(values)}")
+        best = int(np.argmin(costs))
+        if best == 0:
+            return with_values(model, {ref: values[0]})
+        # Between the neighbours of the best grid value, never below the first grid value (see above).
+        lo = math.log(values[max(best - 1, 1)])
+        hi = math.log(values[min(best + 1, len(values) - 1)])
+        result = minimize_scalar(
+            lambda x: cost(math.exp(x)),
+            bounds=(lo, hi),
+            method="bounded",
+            options={"xatol": 2e-3, "maxiter": 14},
+        )
+        value = math.exp(result.x) if result.fun <= costs[best] else values[best]
+        self._say(f"{label} = {value:.4g}")
+        return with_values(model, {ref: value})
+
+    def _fault_search(self, model: Model) -> Model:
+        """Exhaustive rotor x onset search for actuator_fault (module docstring)."""
+        if FAULT_MOTOR in self.held:
+            return model
+        samples = self.samples
+        healthy = with_values(model, {FAULT_EFFECTIVENESS: 1.0})
+        others = [r for r in self.linear if r != FAULT_EFFECTIVENESS]
+        design = build_design(samples, healthy, others)
+        solver = LinearSolver(others, healthy.airframe, self.held)
+        theta = solver.solve(design, self.rows, self.weights)
+        healthy = with_values(healthy, dict(zip(others, theta.tolist(), strict=True)))
+        design = build_design(samples, healthy, others)
+        rows = self.rows
+        n_rows = int(np.count_nonzero(rows))
+        thrust, torque_factor = healthy.rotor_thrusts(design.ctx)
+        e_z = design.ctx.e_z_W
+        airframe = healthy.airframe
+        # Per-rotor columns of delta = 1 - effectiveness: the lost thrust and the lost rotor torque.
+        force_cols = -thrust[:, :, None] * e_z[:, None, :]  # (T, N, 3)
+        positions = airframe.rotor_positions_m
+        drag = airframe.k_t_N_m_s2 * design.ctx.omega**2 * torque_factor * airframe.spin_signs[None, :]
+        torque_cols = -np.stack(
+            [thrust * positions[None, :, 1], -thrust * positions[None, :, 0], drag], axis=2
+        )
+        if samples.chain.order > 0:
+            force_cols = samples.through_chain(force_cols)
+        sw = np.sqrt(self.weights)
+        Y = np.where(rows[:, None], design.y * sw, 0.0)
+        Phi = np.where(rows[:, None, None], design.Phi * sw[None, :, None], 0.0)
+        C = np.where(rows[:, None, None], force_cols * sw[None, None, :], 0.0)
+        P = Phi.shape[2]
+        A = Phi.reshape(Y.size, P)
+        G = A.T @ A
+        G_inv = np.linalg.pinv(G) if P else np.zeros((0, 0))
+        r0 = Y - Phi @ (G_inv @ (A.T @ Y.reshape(-1))) if P else Y
+        noise = max(float(np.mean(r0[rows] ** 2)), 1e-300)
+        rot = self._torque_residual(healthy, design.ctx)
+        order = np.arange(rows.size)
+        eligible = rows.copy()
+        after = np.cumsum(rows[::-1])[::-1]
+        eligible &= after * samples.dt >= MIN_FAULT_DURATION_S
+        best_score = np.zeros(airframe.n_rotors)
+        best_index = np.zeros(airframe.n_rotors, dtype=int)
+        profiles = []
+        for m in range(airframe.n_rotors):
+            c = C[:, m, :]
+            R_k = _suffix(np.sum(c * r0, axis=1))
+            H_k = _suffix(np.sum(c * c, axis=1))
+            if P:
+                g_k = _suffix(np.einsum("tap,ta->tp", Phi, c))
+                H_k = H_k - np.einsum("tp,pq,tq->t", g_k, G_inv, g_k)
+            H_k = np.maximum(H_k, 1e-300)
+            delta = R_k / H_k
+            score = np.where(delta > 0, np.where(delta <= 1, R_k**2 / H_k, 2 * R_k - H_k), 0.0) / noise
+            if rot is not None:
+                residual_tau, scale_tau = rot
+                ct = torque_cols[:, m, :] / scale_tau
+                ct = np.where(rows[:, None], ct, 0.0)
+                Rt = _suffix(np.sum(ct * residual_tau, axis=1))
+                Ht = np.maximum(_suffix(np.sum(ct * ct, axis=1)), 1e-300)
+                dt_ = Rt / Ht
+                score = score + np.where(dt_ > 0, np.where(dt_ <= 1, Rt**2 / Ht, 2 * Rt - Ht), 0.0)
+            score = np.where(eligible, score, -np.inf)
+            profiles.append(score)
+            best_index[m] = int(np.argmax(score))
+            best_score[m] = score[best_index[m]]
+        motor = int(np.argmax(best_score))
+        k = best_index[motor]
+        ranking = np.argsort(best_score)[::-1]
+        self.fault_candidates = [
+            (int(m) + 1, float(samples.t[best_index[m]]), float(best_score[m])) for m in ranking[:3]
+        ]
+        self.fault_profile = (order, profiles[motor])
+        self._say(
+            f"actuator_fault: rotor {motor + 1} from t = {samples.t[k]:.2f} s (searched {airframe.n_rotors} "
+            "rotors x "
+            f"{int(np.count_nonzero(eligible))} onsets over {n_rows} samples)"
+        )
+        return with_values(model, {FAULT_MOTOR: motor + 1.0, FAULT_ONSET: float(samples.t[k])})
+
+    def _torque_residual(self, model: Model, ctx: EffectContext) -> tuple[FloatArray, FloatArray] | None:
+        """The torque balance residual (:func:`torque_residual`) scaled per axis, zero off the fitted rows."""
+        rows = self.rows & np.all(np.isfinite(self.samples.w_dot_B), axis=1)
+        if np.count_nonzero(rows) < 20:
+            return None
+        residual = torque_residual(self.samples, model)
+        median = np.median(residual[rows], axis=0)
+        scale = 1.4826 * np.median(np.abs(residual[rows] - median), axis=0)
+        scale = np.maximum(scale, 1e-9)
+        return np.where(rows[:, None], residual / scale, 0.0), scale
+
+    def _refine_onset(self, model: Model) -> Model:
+        """Exact designs around the onset found by the search (the filter blurs a step by its window)."""
+        samples = self.samples
+        onset = float(model.effect("actuator_fault")["t_fault_s"])
+        k = int(np.searchsorted(samples.t, onset))
+        reach = max(samples.chain.half_window + 2, 3)
+        best = (self.solve_linear(model)[2], onset)
+        for j in range(max(k - reach, 0), min(k + reach + 1, samples.t.size)):
+            candidate = float(samples.t[j])
+            if candidate == onset:
+                continue
+            cost = self.solve_linear(with_values(model, {FAULT_ONSET: candidate}))[2]
+            if cost < best[0]:
+                best = (cost, candidate)
+        return with_values(model, {FAULT_ONSET: best[1]})
+
+    # -- the whole fit -------------------------------------------------------------------------
+
+    def run(self, refine: bool = True, local: bool = False) -> Model:
+        """The model with every free parameter fitted (held ones at their held values).
+
+        ``local``: search the continuous non-linear parameters only near their starting values (a factor
+        of 2 either way), for refits that start from a fit of the same log (cross-validation folds).
+        """
+        model = with_values(self.start_model, {r: v for r, v in self.held.items()})
+        self.estimate_weights(model)
+        groups = [g for g in ("fault", RADIUS, TAU) if (FAULT_MOTOR if g == "fault" else g) in self.searched]
+        for _ in range(2 if len(groups) > 1 else 1):
+            for group in groups:
+                if group == "fault":
+                    model = self._fault_search(model)
+                    if refine and samples_blur(self.samples):
+                        model = self._refine_onset(model)
+                else:
+                    model = self._scalar_search(model, group, local)  # type: ignore[arg-type]
+        design, theta, _ = self.solve_linear(model)
+        return with_values(model, dict(zip(self.linear, theta.tolist(), strict=True)))
+
+
+def samples_blur(samples: FlightSamples) -> bool:
+    """Whether the log's acceleration was filtered (a step in force then spreads over the filter window)."""
+    return samples.chain.order > 0
+
+
+def _suffix(values: FloatArray) -> FloatArray:
+    """Sum from each index to the end along axis 0."""
+    return np.cumsum(values[::-1], axis=0)[::-1]
+
+
+# ----------------------------------------------------------------------------------------------
+# covariance and identifiability
+
+
+def newey_west(
+    X: FloatArray, residual: FloatArray, weights: FloatArray
+) -> tuple[FloatArray, FloatArray, int]:
+    """Sandwich covariance of theta for y = X theta + e over time-ordered rows.
+
+    X (n, 3, P) and residual (n, 3), weighted per axis. Returns (covariance, white-noise covariance,
+    bandwidth in samples). The bandwidth is where the residual's autocorrelation falls below 0.1 (at least
+    the Newey–West rule 4 (n/100)^(2/9)), capped at n/4.
+    """
+    n, _, P = X.shape
+    sw = np.sqrt(weights)
+    Xw = X * sw[None, :, None]
+    ew = residual * sw[None, :]
+    A = Xw.reshape(-1, P)
+    bread = np.linalg.pinv(A.T @ A)
+    dof = max(A.shape[0] - P, 1)
+    white = bread * float(np.sum(ew**2)) / dof
+    scores = np.einsum("tap,ta->tp", Xw, ew)
+    e = ew.sum(axis=1)
+    e = e - e.mean()
+    denominator = float(e @ e) or 1.0
+    rule = int(math.ceil(4 * (n / 100) ** (2 / 9)))
+    max_lag = max(1, min(n // 4, 400))
+    bandwidth = max_lag
+    for lag in range(1, max_lag + 1):
+        if float(e[lag:] @ e[:-lag]) / denominator < 0.1:
+            bandwidth = lag
+            break
+    bandwidth = min(max(bandwidth * 2, rule), max(n // 4, 1))
+    # Bartlett weights 1 - lag/(L+1) are what the covariance of sums of L+1 consecutive scores gives:
+    # one product instead of one per lag (the ends, L samples out of n, are left out and rescaled).
+    span = bandwidth + 1
+    if n > 2 * span:
+        cumulative = np.vstack([np.zeros((1, P)), np.cumsum(scores, axis=0)])
+        sums = cumulative[span:] - cumulative[:-span]
+        meat = (sums.T @ sums) / span * (n / sums.shape[0])
+    else:
+        meat = scores.T @ scores
+        for lag in range(1, bandwidth + 1):
+            gamma = scores[lag:].T @ scores[:-lag]
+            meat += (1.0 - lag / (bandwidth + 1)) * (gamma + gamma.T)
+    meat *= n / max(n - P, 1)
+    return bread @ meat @ bread, white, bandwidth
+
+
+def excitation_evidence(ref: ParameterRef, samples: FlightSamples, model: Model, rows: FloatArray) -> str:
+    """What this log shows of the regime that makes ``ref`` visible, in words."""
+    v = samples.v_WB_W[rows]
+    effect_id, name = ref
+    if ref in (("quadratic_drag", "c_x"), ("quadratic_drag", "c_y"), ("quadratic_drag", "c_z")):
+        axis = "xyz".index(name[-1])
+        return f"|v_{name[-1]}| is {describe_range(np.abs(v[:, axis]), 'm/s')}"
+    if ref == ("rotor_drag", "k_h"):
+        v_B = np.einsum("tji,tj->ti", samples.R_WB[rows], v)
+        return f"body-horizontal speed is {describe_range(np.linalg.norm(v_B[:, :2], axis=1), 'm/s')}"
+    if ref == ("thrust_speed_dependence", "k_f1"):
+        return f"mean rotor speed is {describe_range(samples.omega[rows].mean(axis=1), 'rad/s')}"
+    if ref == ("inflow_thrust_loss", "k_v"):
+        climb = np.einsum("ti,ti->t", v, samples.R_WB[rows][:, :, 2])
+        return f"climb speed along the thrust axis is {describe_range(climb, 'm/s')}"
+    if ref == ("coaxial_loss", "eta_lower"):
+        lower = model.airframe.lower_rotor_mask
+        if not lower.any():
+            return "the airframe has no coaxial rotors"
+        om = samples.omega[rows]
+        share = (om[:, lower] ** 2).sum(axis=1) / np.maximum((om**2).sum(axis=1), 1e-9)
+        return f"the lower rotors' share of sum(omega^2) is {describe_range(share, '')}"
+    if ref == RADIUS:
+        if not samples.height_known:
+            return "the log has no measured height"
+        radius = model.airframe.rotor_radius_m
+        return f"height is {describe_range(samples.p_WB_W[rows, 2], 'm')} (rotor radius about {radius:g} m)"
+    if ref == TAU:
+        rate = np.abs(np.diff(samples.omega[rows].mean(axis=1))) / samples.dt
+        return f"the mean rotor speed changes at {describe_range(rate, 'rad/s^2')}"
+    if effect_id == "actuator_fault":
+        fault = model.effect("actuator_fault")
+        onset = float(fault["t_fault_s"]) if fault is not None else math.nan
+        after = np.count_nonzero(rows & (samples.t >= onset)) * samples.dt
+        return f"the log has {after:.2f} s of usable flight after the onset t = {onset:.2f} s"
+    return f"{np.count_nonzero(rows)} usable samples"
+
+
+@dataclass
+class Uncertainty:
+    """Standard deviations and identifiability verdicts of a fit."""
+
+    std: dict[ParameterRef, float | None]
+    not_identifiable: dict[ParameterRef, str]
+    worst: ParameterRef | None
+    notes: list[str]
+
+
+def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
+    """Covariance of the continuous free parameters of a fitted ``model`` and the identifiability verdicts."""
+    samples = fitter.samples
+    rows = fitter.rows
+    design = build_design(samples, model, fitter.linear)
+    theta = np.array([parameter_value(model, r) for r in fitter.linear])
+    residual = residual_force(design, theta)
+    columns = [design.Phi]
+    continuous = list(fitter.linear)
+    probes: dict[ParameterRef, float] = {}
+    for ref in (RADIUS, TAU):
+        if ref in fitter.searched and ref not in fitter.held:
+            value = parameter_value(model, ref)
+            if value <= 2 * NEUTRAL_SEARCH_VALUE[ref]:
+                # At "no effect" the force does not change to first order (the ground factor is quadratic in
+                # the radius): whether the log could show the effect is judged at a typical value instead.
+                value = parameter_spec(ref, model.airframe).scale
+                probes[ref] = value
+            step = max(1e-4, 1e-3 * value)
+            lo, hi = max(value - step, 1e-6), value + step
+            r_hi = residual_force(build_design(samples, with_values(model, {ref: hi}), fitter.linear), theta)
+            r_lo = residual_force(build_design(samples, with_values(model, {ref: lo}), fitter.linear), theta)
+            # The prediction's derivative is minus the residual's.
+            columns.append(((r_lo - r_hi) / (hi - lo))[:, :, None])
+            continuous.append(ref)
+    X = np.concatenate(columns, axis=2)[rows]
+    free_idx = [j for j, r in enumerate(continuous) if r not in fitter.held]
+    std: dict[ParameterRef, float | None] = {r: None for r in fitter.free}
+    notes: list[str] = []
+    not_identifiable: dict[ParameterRef, str] = {}
+    worst: tuple[tuple[int, int, float], ParameterRef] | None = None
+    if free_idx:
+        Xf = X[:, :, free_idx]
+        cov, white, bandwidth = newey_west(Xf, residual[rows], fitter.weights)
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        sd_white = np.sqrt(np.maximum(np.diag(white), 0.0))
+        inflation = float(np.median(sd / np.maximum(sd_white, 1e-300)))
+        notes.append(
+            f"standard deviations: Newey-West (bandwidth {bandwidth} samples = {bandwidth * samples.dt:.3g} "
+            "s) for "
+            f"autocorrelated residuals; the white-noise formula gives {inflation:.2g} times smaller values"
+        )
+        A = (Xf * np.sqrt(fitter.weights)[None, :, None]).reshape(-1, len(free_idx))
+        norms = np.linalg.norm(A, axis=0)
+        norms[norms == 0] = 1.0
+        corr = (A / norms).T @ (A / norms)
+        refs_free = [continuous[j] for j in free_idx]
+        residual_rms = float(np.sqrt(np.mean(np.sum(residual[rows] ** 2, axis=1)))) / float(
+            np.asarray(model.mass_kg)
+        )
+        for ref in probes:
+            notes.append(
+                f"{ref[1]}: the best fit is no {ref[0]}; its std is the resolution the log would give near "
+                f"{probes[ref]:g}"
+            )
+        ratios = []
+        for i, ref in enumerate(refs_free):
+            spec = parameter_spec(ref, model.airframe)
+            allowed = IDENTIFIABLE_RELATIVE_STD * max(
+                abs(probes.get(ref, parameter_value(model, ref)) - spec.neutral), spec.scale
+            )
+            ratios.append((float(sd[i]) / allowed if allowed > 0 else math.inf, allowed))
+        # Columns this close are one column: the data give only a combination, and noise in the inputs (errors
+        # in
+        # variables) makes the std of each meaningless, so the verdict does not wait for the std to be large.
+        collinear: dict[int, tuple[int, float]] = {}
+        for i in range(len(refs_free)):
+            for j in range(i + 1, len(refs_free)):
+                if abs(corr[i, j]) >= EXACTLY_COLLINEAR:
+                    k_f_index = next((k for k in (i, j) if refs_free[k] == (AIRFRAME, K_F)), None)
+                    victim = (
+                        k_f_index if k_f_index is not None else (i if ratios[i][0] >= ratios[j][0] else j)
+                    )
+                    collinear[victim] = (j if victim == i else i, abs(float(corr[i, j])))
+        for i, ref in enumerate(refs_free):
+            std[ref] = float(sd[i])
+            spec = parameter_spec(ref, model.airframe)
+            value = parameter_value(model, ref)
+            ratio, allowed = ratios[i]
+            if i in collinear or not sd[i] <= allowed or norms[i] == 1.0 and np.allclose(A[:, i], 0):
+                others = [(abs(corr[i, j]), refs_free[j]) for j in range(len(refs_free)) if j != i]
+                partner = max(others, default=(0.0, None))
+                if i in collinear:
+                    partner = (collinear[i][1], refs_free[collinear[i][0]])
+                if partner[1] is not None and partner[0] >= COLLINEAR_CORRELATION:
+                    why = (
+                        f"nearly collinear with {partner[1][1]} (correlation {partner[0]:.5f}): this log "
+                        "determines only "
+                        "a combination of the two"
+                    )
+                else:
+                    why = (
+                        "too little excitation for the noise and unexplained error of this log "
+                        f"({residual_rms:.2g} "
+                        f"m/s^2 RMS): it shows in {spec.excited_by}, and "
+                        f"{excitation_evidence(ref, samples, model, rows)}"
+                    )
+                not_identifiable[ref] = (
+                    f"{ref[1]} is not identifiable ({why})"
+                    if i in collinear
+                    else f"{ref[1]} = {value:.4g} +/- {sd[i]:.2g} is not identifiable ({why}); "
+                    f"the std must stay below {allowed:.2g} to tell a relevant value from none"
+                )
+                # Exact collinearity first, and k_f (the airframe's own, known value) before an effect's
+                # parameter.
+                key = (2 if i in collinear else 1, 1 if ref == (AIRFRAME, K_F) else 0, ratio)
+                if worst is None or key > worst[0]:
+                    worst = (key, ref)
+    for ref in fitter.held:
+        std[ref] = None
+    return Uncertainty(std, not_identifiable, None if worst is None else worst[1], notes), residual
+
+
+def torque_residual(samples: FlightSamples, model: Model) -> FloatArray:
+    """(T, 3) I dw/dt + w x I w - tau_model [N m], body FLU; NaN where the angular acceleration is unknown.
+
+    The log's angular acceleration is a filtered derivative of its body rates, so the model's torque goes
+    through the same derivative-of-integral filter (:class:`MeasurementChain` of order 1), twice when the
+    rates were themselves derived from Euler angles. Cached per model.
+    """
+    key = ("torque residual", _model_key(model, ()))
+    if key not in samples.design_cache:
+        lag = model.effect("motor_lag")
+        omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
+        _, tau, _ = model.wrench(samples.context(model, omega))
+        inertia = model.inertia_kg_m2
+        w = samples.w_WB_B
+        gyro = np.cross(w, w @ inertia.T)
+        # Rates from a gyro are differentiated once; rates from Euler angles were themselves a filtered
+        # derivative, so the angular acceleration went through the filter twice.
+        chain = MeasurementChain(1, samples.chain.flt, samples.chain.dt)
+        modelled = tau - gyro
+        for _ in range(samples.rate_chain.order):
+            modelled = chain.apply(samples.t, modelled, samples.segments)
+        samples.design_cache[key] = samples.w_dot_B @ inertia.T - modelled
+    return samples.design_cache[key]
+
+
+def acceleration_residual(samples: FlightSamples, model: Model) -> FloatArray:
+    """(T, 3) measured minus modelled acceleration [m/s^2] (model output through the log's chain)."""
+    design = build_design(samples, model, [])
+    return design.y / np.asarray(model.mass_kg, dtype=float)
+
+
+def fit_parameters(
+    samples: FlightSamples,
+    model: Model,
+    free: Sequence[ParameterRef],
+    rows: FloatArray | None = None,
+    progress: Progress | None = None,
+    hold_unidentifiable: bool = True,
+    held: dict[ParameterRef, float] | None = None,
+    weights: FloatArray | None = None,
+) -> FitResult:
+    """Fit ``free`` parameters of ``model`` (its values are the start) on ``rows`` of ``samples``.
+
+    With ``hold_unidentifiable`` a parameter found not identifiable is held at its starting value and the
+    rest refitted, one at a time, until every free parameter is identifiable; each verdict is kept.
+    """
+    held = dict(held or {})
+    verdicts: dict[ParameterRef, str] = {}
+    notes: list[str] = []
+    while True:
+        fitter = Fitter(samples, model, free, rows=rows, progress=progress, held=held, weights=weights)
+        fitted = fitter.run()
+        uncertainty, residual = assess(fitter, fitted)
+        if hold_unidentifiable and uncertainty.worst is not None:
+            ref = uncertainty.worst
+            verdicts[ref] = uncertainty.not_identifiable[ref]
+            held[ref] = parameter_value(model, ref)
+            if ref == FAULT_EFFECTIVENESS:
+                held.update(
+                    {
+                        FAULT_MOTOR: parameter_value(model, FAULT_MOTOR),
+                        FAULT_ONSET: parameter_value(model, FAULT_ONSET),
+                    }
+                )
+            if progress is not None:
+                progress(f"holding {ref[1]} at {held[ref]:.4g}: not identifiable")
+            continue
+        verdicts.update(uncertainty.not_identifiable)
+        notes += uncertainty.notes
+        break
+    std = dict(uncertainty.std)
+    if FAULT_ONSET in fitter.searched and FAULT_ONSET not in held and fitter.fault_profile is not None:
+        order, profile = fitter.fault_profile
+        finite = np.isfinite(profile)
+        near = finite & (profile >= np.max(profile[finite]) - 1.0)
+        spread = samples.t[near]
+        std[FAULT_ONSET] = float(max((spread.max() - spread.min()) / 2, samples.dt / 2))
+        notes.append(
+            "t_fault_s std: half the span of onsets whose fit is within one (whitened) unit of the best; "
+            "motor is a discrete choice (no std)"
+        )
+    mass = np.asarray(fitted.mass_kg, dtype=float)
+    acc_residual = np.where(fitter.rows[:, None], residual / mass, np.nan)
+    values = {r: parameter_value(fitted, r) for r in free}
+    return FitResult(
+        model=fitted,
+        free=list(fitter.free),
+        values=values,
+        std=std,
+        not_identifiable=verdicts,
+        residual=acc_residual,
+        rows=fitter.rows,
+        weights=fitter.weights,
+        notes=notes,
+        fault_candidates=fitter.fault_candidates,
+    )

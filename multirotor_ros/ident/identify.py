@@ -1,0 +1,402 @@
+"""Offline identification: fit the base model's k_f and the parameters of chosen effects to a flight log.
+
+:func:`identify` is what ``multirotor identify`` runs. The model is the airframe's rigid body and thrust
+plus exactly the effects asked for (the airframe's own effect list is replaced); k_f and every parameter
+of those effects are fitted (:mod:`multirotor_ros.ident.fit`), ``actuator_fault``'s rotor and onset by
+search. Effects the airframe configures start from its values, the others from "no effect".
+
+The result says, per parameter, the value and its standard deviation, or that it is not identifiable on
+this log and why (then its value is ``None`` in :attr:`IdentificationResult.parameters`, never a number
+the data do not support), and the acceleration error per axis before (the model at its starting values)
+and after the fit, on the identification log and, if given, on a separate validation log (seed 1 §III-C
+uses one experiment to identify and another to validate).
+
+Writes (:meth:`IdentificationResult.write`): ``identified.json``, ``<airframe>_identified.yaml`` (an
+airframe YAML with the fitted values that :func:`~multirotor_ros.model.airframe.load_airframe` reads) and
+PNG plots of measured against modelled acceleration and position.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from multirotor_ros.ident.fit import FitResult, acceleration_residual, fit_parameters, nuisance_estimate
+from multirotor_ros.ident.metrics import AXES, horizon_position_error, model_acceleration, per_axis
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef, neutral_effect_spec, parameter_spec
+from multirotor_ros.ident.samples import FlightSamples, load_samples
+from multirotor_ros.io.flight_log import FlightLog
+from multirotor_ros.model.airframe import Airframe, load_airframe
+from multirotor_ros.model.effects import EFFECTS, make_effect
+from multirotor_ros.model.model import Model
+
+Progress = Callable[[str], None]
+
+
+@dataclass
+class LogFit:
+    """Errors of the model before and after on one log."""
+
+    log: str
+    mse_before: dict[str, float]
+    mse_after: dict[str, float]
+    position_mse_before: dict[str, float] | None
+    position_mse_after: dict[str, float] | None
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain dict."""
+        return dict(self.__dict__)
+
+
+@dataclass
+class IdentificationResult:
+    """What :func:`identify` found (module docstring)."""
+
+    airframe: Airframe
+    effects: list[str]
+    parameters: dict[str, float | None]
+    std: dict[str, float | None]
+    not_identifiable: dict[str, str]
+    held_at: dict[str, float]
+    identification: LogFit
+    validation: LogFit | None
+    fit: FitResult
+    model_before: Model
+    model_after: Model
+    samples: FlightSamples
+    validation_samples: FlightSamples | None
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    nuisance: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def mse_before(self) -> dict[str, float]:
+        """Acceleration mse per axis [(m/s^2)^2] of the starting model on the identification log."""
+        return self.identification.mse_before
+
+    @property
+    def mse_after(self) -> dict[str, float]:
+        """Acceleration mse per axis [(m/s^2)^2] of the fitted model on the identification log."""
+        return self.identification.mse_after
+
+    def to_json(self) -> dict[str, Any]:
+        """identified.json as a dict (interfaces.md: parameters, std, mse_before, mse_after first)."""
+        return {
+            "parameters": {
+                k: (int(round(v)) if k == "motor" and v is not None else v)
+                for k, v in self.parameters.items()
+            },
+            "std": self.std,
+            "mse_before": self.mse_before,
+            "mse_after": self.mse_after,
+            "airframe": self.airframe.name,
+            "log": self.identification.log,
+            "effects": self.effects,
+            "not_identifiable": self.not_identifiable,
+            "held_at": self.held_at,
+            "nuisance": self.nuisance,
+            "metric": (
+                "mse_*: mean square error per world axis of the acceleration [(m/s^2)^2], measured minus "
+                "modelled over "
+                "the log's usable samples, the model driven by the log's attitude, rotor speeds, velocity "
+                "and height; "
+                "before = the model at its starting values (airframe configuration, or no effect), after = "
+                "fitted. "
+                "position_mse_*: mean square position error [m^2] over 1 s horizons re-initialised on the "
+                "measurement."
+            ),
+            "position_mse_before": self.identification.position_mse_before,
+            "position_mse_after": self.identification.position_mse_after,
+            "validation": None if self.validation is None else self.validation.to_json(),
+            "warnings": self.warnings,
+            "notes": self.notes,
+        }
+
+    def summary(self) -> str:
+        """A few lines for a terminal."""
+        lines = [
+            f"identified {', '.join(['k_f', *self.effects])} on {self.identification.log} "
+            f"({self.airframe.name}):"
+        ]
+        for name, value in self.parameters.items():
+            if value is None:
+                lines.append(f"  {name:16s} not identifiable (held at {self.held_at[name]:.6g})")
+            else:
+                sd = self.std.get(name)
+                lines.append(f"  {name:16s} {value:.6g}" + ("" if sd is None else f" +/- {sd:.2g}"))
+        before = ", ".join(f"{a} {self.mse_before[a]:.4g}" for a in AXES)
+        after = ", ".join(f"{a} {self.mse_after[a]:.4g}" for a in AXES)
+        lines.append(f"  acceleration mse [(m/s^2)^2] before: {before}; after: {after}")
+        if self.validation is not None:
+            vb = ", ".join(f"{a} {self.validation.mse_before[a]:.4g}" for a in AXES)
+            va = ", ".join(f"{a} {self.validation.mse_after[a]:.4g}" for a in AXES)
+            lines.append(f"  validation log {self.validation.log}: before {vb}; after {va}")
+        return "\n".join(lines)
+
+    def airframe_document(self) -> dict[str, Any]:
+        """The airframe YAML with the fitted values (unidentified parameters keep their starting values)."""
+        source = self.airframe.source_path
+        document: dict[str, Any] = yaml.safe_load(source.read_text(encoding="utf-8")) if source else {}
+        document = dict(document or {})
+        document["name"] = f"{self.airframe.name}_identified"
+        document["description"] = (
+            f"{self.airframe.description or self.airframe.name}; k_f and effects identified from "
+            f"{self.identification.log} by multirotor identify"
+        ).strip()
+        document["k_f_N_s2"] = float(self.model_after.airframe.k_f_N_s2)
+        effects = []
+        for effect in self.model_after.effects:
+            values = {name: float(v) for name, v in effect.parameters.items()}
+            neutral = neutral_effect_spec(effect.id, self.airframe)
+            if all(self.parameters.get(name) is None for name in values) and values == neutral:
+                continue  # nothing identified: an effect at "does nothing" only confuses a reader
+            if effect.id == "actuator_fault":
+                values["motor"] = int(round(values["motor"]))
+            effects.append({"id": effect.id, **values})
+        document["effects"] = effects
+        return document
+
+    def write(self, out_dir: str | Path, plots: bool = True) -> list[Path]:
+        """identified.json, <airframe>_identified.yaml and plots in ``out_dir`` (created)."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        json_path = out / "identified.json"
+        json_path.write_text(json.dumps(_clean(self.to_json()), indent=2) + "\n", encoding="utf-8")
+        written.append(json_path)
+        yaml_path = out / f"{self.airframe.name}_identified.yaml"
+        header = [
+            f"# Airframe {self.airframe.name} with k_f and effect parameters identified by `multirotor "
+            "identify`",
+            f"# from {self.identification.log} on {datetime.date.today().isoformat()}; see identified.json "
+            "for",
+            "# standard deviations and the acceleration error before and after.",
+        ]
+        header += [
+            f"# NOT identified (starting value kept): {name}: {why}"
+            for name, why in self.not_identifiable.items()
+        ]
+        body = yaml.safe_dump(self.airframe_document(), sort_keys=False, default_flow_style=None, width=110)
+        yaml_path.write_text("\n".join(header) + "\n" + body, encoding="utf-8")
+        written.append(yaml_path)
+        if plots:
+            written += self._plots(out)
+        return written
+
+    def _plots(self, out: Path) -> list[Path]:
+        from multirotor_ros.ident.plots import plot_axes
+
+        paths = [self._thrust_coefficient_plot(out)]
+        for label, samples in (("identification", self.samples), ("validation", self.validation_samples)):
+            if samples is None:
+                continue
+            before = samples.a_W - acceleration_residual(samples, self.model_before)
+            after = samples.a_W - acceleration_residual(samples, self.model_after)
+            paths.append(
+                plot_axes(
+                    samples,
+                    samples.a_W,
+                    {"before": before, "identified": after},
+                    out / f"{label}_acceleration.png",
+                    f"{label.capitalize()} log {Path(samples.source).name}: acceleration (world ENU)",
+                    "m/s^2",
+                )
+            )
+            if samples.position_measured:
+                _, p_before = horizon_position_error(samples, model_acceleration(samples, self.model_before))
+                _, p_after = horizon_position_error(samples, model_acceleration(samples, self.model_after))
+                paths.append(
+                    plot_axes(
+                        samples,
+                        samples.p_WB_W,
+                        {"before, 1 s horizons": p_before, "identified, 1 s horizons": p_after},
+                        out / f"{label}_position.png",
+                        f"{label.capitalize()} log: position over 1 s horizons re-initialised on the "
+                        "measurement",
+                        "m",
+                    )
+                )
+        return paths
+
+    def _thrust_coefficient_plot(self, out: Path) -> Path:
+        """Seed 1 Fig. 4: the thrust coefficient the log shows against rotor speed, and the identified one.
+
+        Per sample, the force along the thrust axis that the measured motion needs, minus the identified
+        model's other forces, divided by sum(omega^2); binned by mean rotor speed (12 bins of equal width).
+        """
+        from multirotor_ros.ident.plots import plot_binned
+
+        samples, model = self.samples, self.model_after
+        lag = model.effect("motor_lag")
+        omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
+        ctx = samples.context(model, omega)
+        force, _, thrust = model.wrench(ctx)
+        e_z = ctx.e_z_W
+        needed = np.asarray(model.mass_kg, dtype=float) * (
+            samples.a_W + np.array([0.0, 0.0, model.gravity_m_s2])
+        )
+        other = force - thrust.sum(axis=1)[:, None] * e_z
+        squares = np.sum(omega**2, axis=1)
+        rows = samples.valid & (squares > 0)
+        shown = np.where(
+            rows, np.einsum("ti,ti->t", needed - other, e_z) / np.where(squares > 0, squares, 1.0), np.nan
+        )
+        fitted = np.where(rows, thrust.sum(axis=1) / np.where(squares > 0, squares, 1.0), np.nan)
+        return plot_binned(
+            omega.mean(axis=1),
+            {"from the measured motion": shown, "identified model": fitted},
+            rows,
+            out / "thrust_coefficient.png",
+            "Thrust coefficient against rotor speed (seed 1 Fig. 4)",
+            "mean rotor speed [rad/s]",
+            "thrust / sum(omega^2) [N s^2/rad^2]",
+            equal_width=True,
+        )
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_clean(v) for v in value]
+    return value
+
+
+def _log_fit(samples: FlightSamples, before: Model, after: Model) -> LogFit:
+    valid = samples.valid
+    r_before = acceleration_residual(samples, before)
+    r_after = acceleration_residual(samples, after)
+    p_before, _ = horizon_position_error(samples, model_acceleration(samples, before))
+    p_after, _ = horizon_position_error(samples, model_acceleration(samples, after))
+    return LogFit(
+        log=Path(samples.source).name,
+        mse_before=per_axis(np.mean(r_before[valid] ** 2, axis=0)),
+        mse_after=per_axis(np.mean(r_after[valid] ** 2, axis=0)),
+        position_mse_before=None if p_before is None else per_axis(p_before),
+        position_mse_after=None if p_after is None else per_axis(p_after),
+    )
+
+
+def identify(
+    airframe: Airframe | str | Path,
+    log: FlightLog | str | Path,
+    effects: Sequence[str],
+    validation_log: FlightLog | str | Path | None = None,
+    progress: Progress | None = None,
+    fit_k_f: bool = True,
+    accelerometer_bias: bool = True,
+) -> IdentificationResult:
+    """Fit k_f (unless ``fit_k_f`` is False) and the parameters of ``effects`` to ``log`` (module docstring).
+
+    ``accelerometer_bias``: when the log's accelerations are measured, a constant bias along body x and y
+    is fitted alongside as a nuisance (:meth:`FlightSamples.estimate_accelerometer_bias`) and reported.
+
+    Raises FlightLogError, LogMismatch or NotEnoughData (ValueError) when the log cannot be used.
+    """
+    if not isinstance(airframe, Airframe):
+        airframe = load_airframe(airframe)
+    effects = list(effects)
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECTS)}")
+    duplicated = sorted({e for e in effects if effects.count(e) > 1})
+    if duplicated:
+        raise ValueError(f"effect(s) listed twice: {', '.join(duplicated)}")
+    rotational = [e for e in effects if EFFECTS[e].rotational]
+    if rotational:
+        raise ValueError(
+            f"{', '.join(rotational)}: rotational effects are not identified from translational motion "
+            "(their torques need the angular accelerations, which this identifier does not fit)"
+        )
+    samples = load_samples(log, airframe)
+    if accelerometer_bias:
+        samples.estimate_accelerometer_bias(airframe.mass_kg)
+    if progress is not None:
+        progress(f"{samples.source}: {np.count_nonzero(samples.valid)} usable samples of {samples.t.size}")
+    configured = {spec["id"]: spec for spec in airframe.effect_specs()}
+    start = [make_effect(configured.get(e) or {"id": e, **neutral_effect_spec(e, airframe)}) for e in effects]
+    model_before = Model(airframe, start)
+    free: list[ParameterRef] = [(AIRFRAME, K_F)] if fit_k_f else []
+    free += [(e, name) for e in effects for name in EFFECTS[e].parameter_units]
+    fit = fit_parameters(samples, model_before, free, progress=progress)
+    model_after = fit.model
+
+    parameters: dict[str, float | None] = {}
+    std: dict[str, float | None] = {}
+    not_identifiable: dict[str, str] = {}
+    held_at: dict[str, float] = {}
+    for ref in free:
+        name = ref[1]
+        value = fit.values[ref]
+        why = fit.not_identifiable.get(ref)
+        spec = parameter_spec(ref, airframe)
+        if why is not None:
+            parameters[name] = None
+            std[name] = None
+            not_identifiable[name] = why
+            held_at[name] = value
+        else:
+            parameters[name] = value
+            std[name] = fit.std.get(ref)
+            sd = std[name]
+            if sd is not None and not spec.discrete and abs(value - spec.neutral) < 2 * sd and name != K_F:
+                fit.notes.append(
+                    f"{name} = {value:.4g} +/- {sd:.2g} is not significantly different from "
+                    f"{spec.neutral:g} (no effect)"
+                )
+    warnings = list(samples.warnings) + [f"{name}: {why}" for name, why in not_identifiable.items()]
+    nuisance = _nuisance_values(samples, model_after)
+    if nuisance:
+        fit.notes.append(
+            "accelerometer bias fitted as a nuisance (body frame): "
+            + ", ".join(f"{name} = {value:.4g}" for name, value in nuisance.items())
+        )
+    validation_samples = None
+    validation = None
+    if validation_log is not None:
+        validation_samples = load_samples(validation_log, airframe)
+        warnings += [f"validation log: {w}" for w in validation_samples.warnings]
+        validation = _log_fit(validation_samples, model_before, model_after)
+    return IdentificationResult(
+        airframe=airframe,
+        effects=effects,
+        parameters=parameters,
+        std=std,
+        not_identifiable=not_identifiable,
+        held_at=held_at,
+        identification=_log_fit(samples, model_before, model_after),
+        validation=validation,
+        fit=fit,
+        model_before=model_before,
+        model_after=model_after,
+        samples=samples,
+        validation_samples=validation_samples,
+        warnings=warnings,
+        notes=list(samples.notes) + fit.notes,
+        nuisance=nuisance,
+    )
+
+
+def _nuisance_values(samples: FlightSamples, model: Model) -> dict[str, float]:
+    """The nuisance parameters (accelerometer bias) that go with ``model`` on ``samples``."""
+    if samples.nuisance is None:
+        return {}
+    columns = samples.nuisance
+    samples.nuisance = None
+    samples.design_cache.clear()
+    try:
+        force = acceleration_residual(samples, model) * float(np.asarray(model.mass_kg))
+    finally:
+        samples.nuisance = columns
+        samples.design_cache.clear()
+    return dict(zip(samples.nuisance_names, nuisance_estimate(samples, force).tolist(), strict=True))

@@ -1,0 +1,229 @@
+"""Regressors of the equation-error form m (a + g e_z) = F(theta), built from the model itself.
+
+For a model and a list of parameters ``(effect id, name)`` (``("airframe", "k_f_N_s2")`` is the base
+thrust coefficient), :class:`ForceRegressor` returns, for a batch of samples,
+
+    y (B, 3) [N],  Phi (B, 3, P) [N per unit parameter]   with   y = Phi theta   (world ENU)
+
+where y = m (a_W + g e_z) - F(theta_0) + Phi theta_0 and column j is F(theta_0 + delta e_j) - F(theta_0)
+divided by delta. For a parameter that enters the force linearly this difference is exact whatever delta,
+so the columns need no knowledge of the formulas: any effect written with the hooks of
+:mod:`multirotor_ros.model.effects` gets its regressor for free. A parameter that changes the mass
+(``dm_kg``) moves to the left side: its column is -(dm/dtheta) (a_W + g e_z).
+
+Two parameters that multiply each other (k_f and eta_lower: a lower rotor gives eta k_f omega^2) are
+bilinear: the columns are then the exact partial derivatives at theta_0, y = Phi theta holds to first order,
+and the caller iterates (:meth:`ForceRegressor.relinearise`), which :mod:`multirotor_ros.ident.fit` does.
+
+Torque columns come the same way (:meth:`ForceRegressor.wrench_columns`); the actuator-fault search uses
+them, because a rotor that lost thrust shows itself most clearly in the torque balance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef
+from multirotor_ros.model.effects import EFFECTS, Effect, EffectContext
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import FloatArray
+
+# Not linear in general, but linear once the others of their effect are fixed: the fault's effectiveness
+# multiplies the faulty rotor's thrust from the (fixed) onset on.
+CONDITIONALLY_LINEAR: frozenset[ParameterRef] = frozenset({("actuator_fault", "effectiveness")})
+# Parameters that scale thrust (a factor) rather than add to it: they make products with k_f, k_f1, k_v.
+_FACTOR_PARAMETERS: frozenset[ParameterRef] = frozenset(
+    {("coaxial_loss", "eta_lower"), ("actuator_fault", "effectiveness")}
+)
+_THRUST_TERM_PARAMETERS: frozenset[ParameterRef] = frozenset(
+    {(AIRFRAME, K_F), ("thrust_speed_dependence", "k_f1"), ("inflow_thrust_loss", "k_v")}
+)
+
+
+def parameter_value(model: Model, ref: ParameterRef) -> float:
+    """Current value of a parameter in ``model`` (scalar parameters only)."""
+    effect_id, name = ref
+    if effect_id == AIRFRAME:
+        if name != K_F:
+            raise ValueError(f"the only airframe parameter fitted is {K_F}, not {name!r}")
+        return float(model.airframe.k_f_N_s2)
+    effect = model.effect(effect_id)
+    if effect is None:
+        raise ValueError(
+            f"the model has no effect {effect_id!r} (it has: {', '.join(model.effect_ids) or 'none'})"
+        )
+    if name not in effect.parameters:
+        raise ValueError(
+            f"effect {effect_id!r} has no parameter {name!r}; it has {', '.join(effect.parameters)}"
+        )
+    value = effect.parameters[name]
+    if value.ndim != 0:
+        raise ValueError(f"{effect_id}.{name} holds {value.shape[0]} values; identification fits one vehicle")
+    return float(value)
+
+
+def with_values(model: Model, values: Mapping[ParameterRef, float]) -> Model:
+    """A copy of ``model`` with some parameters replaced (the effects' range checks apply)."""
+    airframe = model.airframe
+    if (AIRFRAME, K_F) in values:
+        airframe = dataclasses.replace(airframe, k_f_N_s2=float(values[(AIRFRAME, K_F)]))
+    effects: list[Effect] = []
+    for effect in model.effects:
+        changes = {name: float(v) for (eid, name), v in values.items() if eid == effect.id}
+        effects.append(effect.with_parameters(**changes) if changes else effect)
+    unknown = sorted({eid for eid, _ in values} - set(model.effect_ids) - {AIRFRAME})
+    if unknown:
+        raise ValueError(f"the model has no effect {', '.join(unknown)}")
+    return Model(airframe, effects, model.gravity_m_s2)
+
+
+def linear_refs(model: Model, effect_ids: Iterable[str], include_k_f: bool = False) -> list[ParameterRef]:
+    """The linearly entering parameters of these effects (effects.md order), k_f first if asked."""
+    refs: list[ParameterRef] = [(AIRFRAME, K_F)] if include_k_f else []
+    for effect_id in effect_ids:
+        if effect_id not in EFFECTS:
+            raise ValueError(f"unknown effect {effect_id!r}; known: {', '.join(EFFECTS)}")
+        cls = EFFECTS[effect_id]
+        refs += [(effect_id, name) for name in cls.parameter_units if name not in cls.nonlinear_parameters]
+    return refs
+
+
+def _difference_step(model: Model, ref: ParameterRef, value: float) -> float:
+    """A step delta such that value + delta is inside the effect's valid range (any works when linear)."""
+    effect_id, name = ref
+    effect = None if effect_id == AIRFRAME else model.effect(effect_id)
+    for delta in (1.0, -1.0, 0.5, -0.5, 0.1, -0.1, 0.01, -0.01):
+        if effect is None:
+            if value + delta > 0:
+                return delta
+            continue
+        try:
+            effect.with_parameters(**{name: value + delta})
+        except ValueError:
+            continue
+        return delta
+    raise ValueError(f"cannot vary {effect_id}.{name} around {value}: every nearby value is refused")
+
+
+def is_bilinear(refs: Sequence[ParameterRef]) -> bool:
+    """Whether ``refs`` hold a thrust factor (eta_lower, effectiveness) and a thrust term (k_f, k_f1, k_v)."""
+    ref_set = set(refs)
+    return bool(ref_set & _FACTOR_PARAMETERS) and bool(ref_set & _THRUST_TERM_PARAMETERS)
+
+
+class ForceRegressor:
+    """y, Phi of the equation-error form for a fixed model structure and parameter list (module docstring).
+
+    The model variants (one per parameter) are built once here; each call costs 1 + P ``Model.wrench``
+    evaluations on the batch and some array arithmetic.
+    """
+
+    def __init__(self, model: Model, refs: Sequence[ParameterRef]):
+        refs = [tuple(r) for r in refs]  # type: ignore[misc]
+        duplicated = sorted({r for r in refs if refs.count(r) > 1})
+        if duplicated:
+            raise ValueError(f"parameter(s) listed twice: {duplicated}")
+        for effect_id, name in refs:
+            if effect_id == AIRFRAME:
+                continue
+            cls = EFFECTS.get(effect_id)
+            if (
+                cls is not None
+                and name in cls.nonlinear_parameters
+                and (effect_id, name) not in CONDITIONALLY_LINEAR
+            ):
+                raise ValueError(
+                    f"{effect_id}.{name} enters the force non-linearly: it is searched, not regressed "
+                    f"(see multirotor_ros.ident.fit)"
+                )
+        self.refs: list[ParameterRef] = list(refs)  # type: ignore[arg-type]
+        self.names = [name for _, name in self.refs]
+        self.bilinear = is_bilinear(self.refs)
+        self.model = model
+        self.relinearise([parameter_value(model, r) for r in self.refs])
+
+    @property
+    def theta0(self) -> FloatArray:
+        """The parameter values the regressor is built around (exact for linear parameters anyway)."""
+        return self._theta0.copy()
+
+    def relinearise(self, theta: Sequence[float] | FloatArray) -> None:
+        """Rebuild the variants around ``theta`` (needed only when :attr:`bilinear`)."""
+        theta = np.asarray(theta, dtype=float)
+        values = dict(zip(self.refs, theta.tolist(), strict=True))
+        self._base = with_values(self.model, values)
+        self._variants: list[Model] = []
+        self._steps = np.empty(len(self.refs))
+        for j, ref in enumerate(self.refs):
+            delta = _difference_step(self._base, ref, values[ref])
+            self._steps[j] = delta
+            self._variants.append(with_values(self._base, {ref: values[ref] + delta}))
+        self._mass0 = np.asarray(self._base.mass_kg, dtype=float)
+        self._dmass = np.array(
+            [
+                (np.asarray(v.mass_kg) - self._mass0) / d
+                for v, d in zip(self._variants, self._steps, strict=True)
+            ]
+        )
+        self._theta0 = theta
+
+    def wrench_columns(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """F0_W (B, 3), tau0_B (B, 3) at theta_0 and their columns dF (B, 3, P), dtau (B, 3, P).
+
+        The mass columns are not included here (see :meth:`__call__`).
+        """
+        F0, tau0, _ = self._base.wrench(ctx)
+        dF = np.empty(F0.shape + (len(self.refs),))
+        dtau = np.empty_like(dF)
+        for j, (variant, delta) in enumerate(zip(self._variants, self._steps, strict=True)):
+            F, tau, _ = variant.wrench(ctx)
+            dF[:, :, j] = (F - F0) / delta
+            dtau[:, :, j] = (tau - tau0) / delta
+        return F0, tau0, dF, dtau
+
+    def specific_force(self, a_W: FloatArray) -> FloatArray:
+        """a_W + g e_z (world): the force per unit mass that thrust and effects must provide."""
+        s = np.array(a_W, dtype=float, copy=True)
+        s[:, 2] += self.model.gravity_m_s2
+        return s
+
+    def parts(self, ctx: EffectContext, a_W: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(a_W + g e_z (B, 3), model force F0 at theta_0 (B, 3), force columns dF (B, 3, P)).
+
+        Kept apart so that a caller can pass the model side (F0, dF) through the same filter as the
+        measured acceleration before :meth:`assemble` (the mass columns are measured-side).
+        """
+        F0, _, dF, _ = self.wrench_columns(ctx)
+        return self.specific_force(a_W), F0, dF
+
+    def assemble(self, s: FloatArray, F0: FloatArray, dF: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """y, Phi from :meth:`parts` (possibly filtered)."""
+        Phi = dF - s[:, :, None] * self._dmass[None, None, :] if np.any(self._dmass != 0) else dF
+        return self._mass0 * s - F0 + Phi @ self._theta0, Phi
+
+    def __call__(self, ctx: EffectContext, a_W: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Y (B, 3) [N] and Phi (B, 3, P) with y = Phi theta for measured accelerations ``a_W`` (B, 3)."""
+        return self.assemble(*self.parts(ctx, a_W))
+
+    def from_arrays(
+        self,
+        t: Any,
+        p_WB_W: FloatArray,
+        v_WB_W: FloatArray,
+        R_WB: FloatArray,
+        w_WB_B: FloatArray,
+        omega: FloatArray,
+        a_W: FloatArray,
+    ) -> tuple[FloatArray, FloatArray]:
+        """:meth:`__call__` on plain arrays (all with leading axis B)."""
+        ctx = self.model.context(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega)
+        return self(ctx, a_W)
+
+    @property
+    def mass_columns(self) -> FloatArray:
+        """(P,) d(mass)/d(theta_j): nonzero for ``dm_kg``."""
+        return self._dmass.copy()

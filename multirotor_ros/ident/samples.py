@@ -1,0 +1,491 @@
+"""A flight log made ready for identification: every sample's state, inputs and usability.
+
+:func:`load_samples` reads a flight-log CSV (or takes a :class:`FlightLog`), checks it against the
+airframe, and returns :class:`FlightSamples`: world position, velocity and acceleration, attitude, body
+rates, rotor speeds, a mask of the samples that may be fitted, and notes/warnings a person reads.
+
+- Missing motion groups are derived by :func:`multirotor_ros.io.derive.derive_motion` (Savitzky–Golay
+  differentiation). A filtered derivative is not the true acceleration but a smoothed one, so the model's
+  output must go through the same filter before it is compared: :class:`MeasurementChain` integrates the
+  model's acceleration as many times as the log's acceleration was differentiated and applies the same
+  differentiating filter. Without that the fit would chase the filter's smoothing.
+- Samples are excluded (and counted in a warning) when a needed value is not measured, within half a
+  filter window of a gap in time, or while the vehicle may touch the ground (the ground's reaction force
+  is in no model): a ``landed`` column when the log has one, rotors too slow to carry the weight while
+  the vehicle does not move, or rotors less than 2 cm above the ground.
+- A log whose thrust (airframe k_f and the logged rotor speeds) is far from what the measured motion
+  needs does not belong to this airframe, or has its rotor speeds in another unit: :class:`LogMismatch`.
+
+:func:`lag_filter` is the motor_lag effect on logged speeds (effects.md): exact discretisation of
+d(omega)/dt = (omega_log - omega)/tau with the logged speed interpolated linearly between samples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.integrate import cumulative_trapezoid
+from scipy.signal import lfilter, savgol_filter
+
+from multirotor_ros.io.derive import SavitzkyGolay, derive_motion, rotor_speeds_with_note
+from multirotor_ros.io.flight_log import FlightLog, FlightLogError, read_flight_log
+from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
+from multirotor_ros.model.effects import EffectContext
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix
+
+# A time step longer than this many median steps is a gap: nothing is derived or integrated across it.
+GAP_FACTOR = 2.5
+MIN_USABLE_SAMPLES = 50
+MIN_ROTOR_HEIGHT_M = 0.02
+# Thrust / needed force outside this range: the log is not of this airframe (or not in rad/s).
+MISMATCH_RATIO = (0.5, 2.0)
+PLAUSIBLE_RATIO = (0.8, 1.25)
+
+
+class LogMismatch(ValueError):
+    """The log cannot be of this airframe (or its rotor speeds are not in rad/s); the message says why."""
+
+
+class NotEnoughData(ValueError):
+    """Too few usable samples for what was asked; the message says what is missing."""
+
+
+@dataclass(frozen=True)
+class MeasurementChain:
+    """How the log's acceleration was obtained, applied to model outputs (module docstring).
+
+    ``order`` 0: acceleration measured, the chain is the identity; 1: derivative of velocity; 2: second
+    derivative of position, with the Savitzky–Golay filter ``flt`` on the uniform grid of spacing ``dt``.
+    """
+
+    order: int
+    flt: SavitzkyGolay
+    dt: float
+
+    @property
+    def half_window(self) -> int:
+        """Samples at each end of a segment where the filter is not the one applied to the log."""
+        return 0 if self.order == 0 else self.flt.window_samples(self.dt) // 2
+
+    def describe(self) -> str:
+        """One line for reports."""
+        if self.order == 0:
+            return "acceleration measured in the log; model accelerations compared as they are"
+        source = "velocity" if self.order == 1 else "position"
+        window = self.flt.window_samples(self.dt)
+        return (
+            f"acceleration differentiated from the log's {source}; model accelerations pass through the same "
+            f"Savitzky-Golay filter (window {window} samples = {window * self.dt:.3g} s, order "
+            f"{self.flt.polyorder})"
+        )
+
+    def apply(self, t: FloatArray, values: FloatArray, segments: list[tuple[int, int]]) -> FloatArray:
+        """The chain on ``values`` (T, ...) sampled at ``t``, segment by segment; NaN outside segments."""
+        if self.order == 0 or values.size == 0:
+            return values
+        out = np.full(values.shape, np.nan)
+        window = self.flt.window_samples(self.dt)
+        flat = values.reshape(values.shape[0], -1)
+        out_flat = out.reshape(values.shape[0], -1)
+        for start, stop in segments:
+            if stop - start < window:
+                continue
+            ts = t[start:stop]
+            x = flat[start:stop]
+            for _ in range(self.order):
+                x = cumulative_trapezoid(x, ts, axis=0, initial=0.0)
+            grid = ts[0] + self.dt * np.arange(int(np.floor((ts[-1] - ts[0]) / self.dt + 1e-9)) + 1)
+            uniform = grid.size == ts.size and np.allclose(grid, ts, rtol=0.0, atol=1e-6 * self.dt)
+            if not uniform:
+                x = np.column_stack([np.interp(grid, ts, x[:, i]) for i in range(x.shape[1])])
+            d = savgol_filter(
+                x, window, self.flt.polyorder, deriv=self.order, delta=self.dt, axis=0, mode="interp"
+            )
+            if not uniform:
+                d = np.column_stack([np.interp(ts, grid, d[:, i]) for i in range(d.shape[1])])
+            out_flat[start:stop] = d
+        return out
+
+
+@dataclass
+class FlightSamples:
+    """One log as arrays over its T rows (world ENU, body FLU, SI), with the usable-sample mask."""
+
+    t: FloatArray  # (T,) [s]
+    p_WB_W: FloatArray  # (T, 3) [m]
+    v_WB_W: FloatArray  # (T, 3) [m/s]
+    a_W: FloatArray  # (T, 3) [m/s^2], gravity not included
+    euler: FloatArray  # (T, 3) roll, pitch, yaw [rad]
+    R_WB: FloatArray  # (T, 3, 3)
+    w_WB_B: FloatArray  # (T, 3) [rad/s]
+    w_dot_B: FloatArray  # (T, 3) [rad/s^2] (differentiated; NaN where unknown)
+    omega: FloatArray  # (T, N) logged rotor speeds [rad/s]
+    valid: FloatArray  # (T,) bool: usable for fitting
+    segments: list[tuple[int, int]]  # [start, stop) index ranges without gaps or unusable inputs
+    chain: MeasurementChain
+    rate_chain: MeasurementChain  # how w_dot_B was obtained (from body rates or Euler angles)
+    height_known: bool  # z is a measured height above the ground (ground effect can be seen)
+    position_measured: bool
+    source: str = "<log>"
+    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    # Columns (T, 3, K) of nuisance parameters fitted alongside every model (see accelerometer_bias_columns).
+    nuisance: FloatArray | None = None
+    nuisance_names: tuple[str, ...] = ()
+    # Regression designs by model, filled by multirotor_ros.ident.fit.build_design.
+    design_cache: dict[tuple, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def n_rotors(self) -> int:
+        """Rotor count."""
+        return int(self.omega.shape[1])
+
+    @property
+    def dt(self) -> float:
+        """Median sample interval [s]."""
+        return float(np.median(np.diff(self.t))) if self.t.size > 1 else math.nan
+
+    @property
+    def duration_s(self) -> float:
+        """Time covered by usable samples [s] (their count times the median interval)."""
+        return float(np.count_nonzero(self.valid) * self.dt)
+
+    def context(
+        self, model: Model, omega: FloatArray | None = None, rows: FloatArray | None = None
+    ) -> EffectContext:
+        """The model's effect context over all rows (or ``rows``); ``omega`` replaces the logged speeds."""
+        index = slice(None) if rows is None else rows
+        speeds = self.omega if omega is None else omega
+        return model.context(
+            self.t[index],
+            self.p_WB_W[index],
+            self.v_WB_W[index],
+            self.R_WB[index],
+            self.w_WB_B[index],
+            speeds[index],
+        )
+
+    def through_chain(self, values: FloatArray) -> FloatArray:
+        """Model outputs (T, ...) as the log would show them (see :class:`MeasurementChain`)."""
+        return self.chain.apply(self.t, values, self.segments)
+
+    def estimate_accelerometer_bias(self, mass_kg: float) -> None:
+        """Fit a constant accelerometer bias along body x and y as a nuisance in every later fit.
+
+        An IMU's bias of a few mg (seed 1's 3DM-GX3: +-2 mg) is a force of m * bias that a slow flight's
+        drag cannot be told from unless it is modelled: a measured a_W = a + R b makes m (a_W + g e_z) =
+        F + m R b. Body z is left out: there the bias is collinear with thrust and changes k_f by
+        bias/g (0.02 %). Only for measured accelerations (a differentiated position has no such bias).
+        """
+        if self.chain.order != 0:
+            return
+        self.nuisance = mass_kg * self.R_WB[:, :, :2]
+        self.nuisance_names = ("accelerometer_bias_x_m_s2", "accelerometer_bias_y_m_s2")
+        self.design_cache.clear()
+
+    def speeds_for_lag(self, tau_s: float | None) -> FloatArray:
+        """Rotor speeds that make thrust: the logged ones, or lagged by ``tau_s`` (motor_lag)."""
+        if tau_s is None:
+            return self.omega
+        return lag_filter(self.t, self.omega, tau_s, self.segments)
+
+
+def lag_filter(
+    t: FloatArray, omega: FloatArray, tau_s: float, segments: list[tuple[int, int]] | None = None
+) -> FloatArray:
+    """Omega (T, N) through d(w)/dt = (omega - w)/tau; w starts at omega.
+
+    Exact discretisation for the logged speed interpolated linearly between samples (first-order hold):
+    w[k+1] = a w[k] + (1 - a) omega[k] + c (omega[k+1] - omega[k]), a = exp(-h/tau), c = 1 - (tau/h)(1 - a).
+    Unlike a zero-order hold it tends to w = omega as tau -> 0, not to a one-sample delay, so "no lag" is
+    the limit of the family. Each segment restarts from its first logged speed (nothing is known across a
+    gap).
+    """
+    if not tau_s > 0:
+        raise ValueError(f"motor_lag tau_s must be > 0, got {tau_s}")
+    omega = np.asarray(omega, dtype=float)
+    out = np.full(omega.shape, np.nan)
+    for start, stop in segments or [(0, omega.shape[0])]:
+        seg = omega[start:stop]
+        if seg.shape[0] == 0:
+            continue
+        h = np.diff(t[start:stop])
+        a = np.exp(-h / tau_s)
+        c = 1.0 - (tau_s / h) * (1.0 - a)
+        if h.size and np.allclose(h, h[0], rtol=1e-6, atol=0.0):
+            a0, c0 = float(a[0]), float(c[0])
+            # w[k] - a w[k-1] = c omega[k] + (1 - a - c) omega[k-1], started at w[0] = omega[0].
+            lagged = lfilter([c0, 1.0 - a0 - c0], [1.0, -a0], seg, axis=0, zi=(1.0 - c0) * seg[:1])[0]
+        else:
+            lagged = np.empty_like(seg)
+            lagged[0] = seg[0]
+            for k in range(h.size):
+                lagged[k + 1] = a[k] * lagged[k] + (1.0 - a[k]) * seg[k] + c[k] * (seg[k + 1] - seg[k])
+        out[start:stop] = lagged
+    return out
+
+
+def _segments(mask: FloatArray, t: FloatArray, dt: float) -> list[tuple[int, int]]:
+    """Maximal runs of True in ``mask`` without a time gap inside."""
+    breaks = np.zeros(mask.size, dtype=bool)
+    breaks[1:] = np.diff(t) > GAP_FACTOR * dt
+    segments = []
+    start = None
+    for i, ok in enumerate(mask):
+        if ok and (start is None or breaks[i]):
+            if start is not None:
+                segments.append((start, i))
+            start = i
+        elif not ok and start is not None:
+            segments.append((start, i))
+            start = None
+    if start is not None:
+        segments.append((start, mask.size))
+    return segments
+
+
+def _smooth_derivative(
+    t: FloatArray, values: FloatArray, segments: list[tuple[int, int]], flt: SavitzkyGolay, dt: float
+) -> FloatArray:
+    """Savitzky–Golay first derivative per segment (NaN elsewhere); assumes near-uniform sampling."""
+    out = np.full(values.shape, np.nan)
+    window = flt.window_samples(dt)
+    for start, stop in segments:
+        if stop - start >= window:
+            out[start:stop] = savgol_filter(
+                values[start:stop], window, flt.polyorder, deriv=1, delta=dt, axis=0
+            )
+    return out
+
+
+def _describe_rows(t: FloatArray, rows: FloatArray, limit: int = 3) -> str:
+    """'t = 1.2-3.4 s, 5.0-5.1 s, ...' for a boolean row mask."""
+    idx = np.flatnonzero(rows)
+    if idx.size == 0:
+        return "none"
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    parts = [f"{t[r[0]]:.2f}-{t[r[-1]]:.2f} s" for r in runs[:limit]]
+    more = f" and {len(runs) - limit} more" if len(runs) > limit else ""
+    return "t = " + ", ".join(parts) + more
+
+
+def load_samples(
+    log: FlightLog | str | Path,
+    airframe: Airframe,
+    filter: SavitzkyGolay | None = None,  # noqa: A002 - the name derive_motion uses
+    check_thrust: bool = True,
+) -> FlightSamples:
+    """Read (if a path) and prepare a log for identification with ``airframe`` (module docstring)."""
+    flt = filter or SavitzkyGolay()
+    if isinstance(log, FlightLog):
+        log.validate(airframe.n_rotors)
+        flight = log
+    else:
+        flight = read_flight_log(log, airframe.n_rotors)
+    source = str(flight.source_path) if flight.source_path else "<log>"
+    notes: list[str] = []
+    warnings: list[str] = []
+    if flight.n_rotors != airframe.n_rotors:
+        raise FlightLogError(
+            f"the log has {flight.n_rotors} rotors, {airframe.name} has {airframe.n_rotors}",
+            flight.source_path,
+            column="omega_1",
+        )
+    named = flight.metadata.get("airframe")
+    if named and named not in (airframe.name, Path(str(airframe.source_path or "")).stem):
+        warnings.append(f"the log says '# airframe: {named}' but it is analysed as {airframe.name}")
+    t = flight.t
+    if t.size < 3:
+        raise NotEnoughData(f"{source}: {t.size} samples; identification needs at least {MIN_USABLE_SAMPLES}")
+    dt = float(np.median(np.diff(t)))
+    gaps = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt)
+    if gaps.size:
+        listed = ", ".join(f"{t[g]:.3f}-{t[g + 1]:.3f} s" for g in gaps[:5])
+        warnings.append(
+            f"{gaps.size} gap(s) in time longer than {GAP_FACTOR:g} sample intervals ({listed}"
+            f"{', ...' if gaps.size > 5 else ''}): nothing is derived or integrated across them"
+        )
+
+    motion = derive_motion(flight, flt)
+    notes += [f"{group}: {note}" for group, note in motion.notes.items()]
+    omega, omega_note = rotor_speeds_with_note(flight, airframe.motor_map)
+    notes.append(f"rotor speeds: {omega_note}")
+    euler = flight.euler()
+    order = 0 if flight.has_group("acceleration") else (1 if flight.has_group("velocity") else 2)
+    chain = MeasurementChain(order, flt, dt)
+    position_measured = flight.has_group("position")
+    p = np.array(motion.position, dtype=float)
+    height_known = position_measured
+    if not position_measured and "range" in flight.columns and np.any(np.isfinite(flight.columns["range"])):
+        # A downward range sensor measures the height that ground effect depends on; x, y stay integrated.
+        p[:, 2] = flight.columns["range"]
+        height_known = True
+        notes.append("height: the range column stands in for z (no position measured)")
+    elif not position_measured:
+        notes.append(
+            "height: not measured (position integrated from velocity drifts): ground_effect cannot be seen"
+        )
+
+    usable = np.all(np.isfinite(euler), axis=1) & np.all(np.isfinite(omega), axis=1)
+    usable &= np.all(np.isfinite(motion.velocity), axis=1) & np.all(np.isfinite(p), axis=1)
+    missing_inputs = ~usable
+    # Unwrap yaw before any differentiation: a jump of 2 pi is not a rotation.
+    euler_unwrapped = euler.copy()
+    finite_yaw = np.isfinite(euler[:, 2])
+    euler_unwrapped[finite_yaw, 2] = np.unwrap(euler[finite_yaw, 2])
+    R = euler_to_matrix(np.where(np.isfinite(euler), euler, 0.0))
+    input_segments = _segments(usable, t, dt)
+
+    rates_cols = ("p", "q", "r")
+    if all(c in flight.columns for c in rates_cols) and np.any(
+        np.all(np.isfinite(np.column_stack([flight.columns[c] for c in rates_cols])), axis=1)
+    ):
+        w = np.column_stack([flight.columns[c] for c in rates_cols])
+        rate_order = 1
+        notes.append("body rates: measured (p, q, r)")
+    else:
+        euler_dot = _smooth_derivative(t, euler_unwrapped, input_segments, flt, dt)
+        w = np.einsum("tij,tj->ti", euler_rates_matrix(euler), euler_dot)
+        rate_order = 2
+        notes.append("body rates: derived from the Euler angles (Savitzky-Golay derivative)")
+    rate_segments = _segments(usable & np.all(np.isfinite(w), axis=1), t, dt)
+    w_dot = _smooth_derivative(t, np.where(np.isfinite(w), w, 0.0), rate_segments, flt, dt)
+    w = np.where(np.isfinite(w), w, 0.0)
+
+    acceleration_ok = np.all(np.isfinite(motion.acceleration), axis=1)
+    valid = usable & acceleration_ok
+    segments = _segments(valid, t, dt)
+    # The filter's ends differ from its middle; the model side cannot reproduce what crossed a gap.
+    trimmed = np.zeros_like(valid)
+    half = chain.half_window
+    for start, stop in segments:
+        if stop - start > 2 * half:
+            trimmed[start + half : stop - half] = True
+    edge_rows = valid & ~trimmed
+    valid = trimmed
+
+    contact = np.zeros_like(valid)
+    s_needed = np.array(motion.acceleration, dtype=float)
+    s_needed[:, 2] += GRAVITY_M_S2
+    thrust_nominal = airframe.k_f_N_s2 * np.sum(np.where(np.isfinite(omega), omega, 0.0) ** 2, axis=1)
+    weight = airframe.mass_kg * GRAVITY_M_S2
+    speed = np.linalg.norm(np.where(np.isfinite(motion.velocity), motion.velocity, 0.0), axis=1)
+    still = (speed < 0.05) & (np.abs(np.nan_to_num(motion.acceleration[:, 2])) < 0.5)
+    if "landed" in flight.columns:
+        # The flight stack's own landing detector knows better than any rule of thumb here.
+        landed = flight.columns["landed"]
+        contact |= np.isfinite(landed) & (landed > 0.5)
+        notes.append(f"ground contact: the log's landed column ({np.count_nonzero(contact)} samples landed)")
+    elif height_known:
+        rotor_height = p[:, 2:3] + np.einsum("tj,nj->tn", R[:, 2, :], airframe.rotor_positions_m)
+        lowest = np.nanmin(p[:, 2]) if np.any(np.isfinite(p[:, 2])) else np.inf
+        # Rotors within 2 cm of the ground (landing gear may touch), or resting at the lowest height with
+        # too little thrust to fly.
+        contact |= np.nan_to_num(np.min(rotor_height, axis=1), nan=np.inf) < MIN_ROTOR_HEIGHT_M
+        contact |= (
+            still & (thrust_nominal < 0.85 * weight) & (np.nan_to_num(p[:, 2], nan=np.inf) < lowest + 0.05)
+        )
+    else:
+        # Without height, only thrust far below the weight while still says "on the ground".
+        contact |= still & (thrust_nominal < 0.5 * weight)
+    if np.any(contact & valid):
+        warnings.append(
+            f"{np.count_nonzero(contact & valid)} samples with the vehicle on the ground are not fitted "
+            f"(the ground's reaction is in no model): {_describe_rows(t, contact & valid)}"
+        )
+    valid &= ~contact
+
+    if np.any(missing_inputs):
+        share = np.count_nonzero(missing_inputs) / t.size
+        warnings.append(
+            f"{np.count_nonzero(missing_inputs)} samples ({100 * share:.1f} %) lack attitude, rotor speeds, "
+            "position or "
+            f"velocity and are not used: {_describe_rows(t, missing_inputs)}"
+        )
+    if np.any(edge_rows) and chain.order > 0:
+        notes.append(
+            f"{np.count_nonzero(edge_rows)} samples within half a filter window of a segment end are not used"
+        )
+    n_valid = int(np.count_nonzero(valid))
+    if n_valid < MIN_USABLE_SAMPLES:
+        raise NotEnoughData(
+            f"{source}: only {n_valid} usable samples (of {t.size}); identification needs at least "
+            f"{MIN_USABLE_SAMPLES} samples in flight with attitude, rotor speeds and motion measured"
+        )
+
+    if check_thrust:
+        ratio = _thrust_ratio(airframe, omega, s_needed, valid)
+        if not math.isfinite(ratio):
+            raise NotEnoughData(
+                f"{source}: no usable sample in flight (the needed force is never near the weight)"
+            )
+        notes.append(
+            f"thrust check: k_f sum(omega^2) / (m |a + g|) = {ratio:.3f} (median over usable samples)"
+        )
+        if not MISMATCH_RATIO[0] <= ratio <= MISMATCH_RATIO[1]:
+            hint = " Wrong airframe, rotor channels or motor map, or rotor speeds not in rad/s."
+            if 0.6 * (30 / math.pi) ** 2 <= ratio <= 1.6 * (30 / math.pi) ** 2:
+                hint = " The rotor speeds look like rpm: the log must give rad/s (rpm * pi / 30)."
+            elif 0.6 * (2 * math.pi) ** -2 <= ratio <= 1.6 * (2 * math.pi) ** -2:
+                hint += " (A ratio near 1/(2 pi)^2 = 0.025 is what rev/s instead of rad/s would give.)"
+            hover = math.sqrt(airframe.mass_kg * GRAVITY_M_S2 / (airframe.n_rotors * airframe.k_f_N_s2))
+            median_speed = float(np.median(omega[valid]))
+            raise LogMismatch(
+                f"{source}: the log does not match airframe {airframe.name}: with k_f = "
+                f"{airframe.k_f_N_s2:g} "
+                f"N s^2/rad^2 and m = {airframe.mass_kg:g} kg the logged rotor speeds (median "
+                f"{median_speed:.0f} "
+                f"rad/s; hovering needs about {hover:.0f}) give {ratio:.2f} times the force the measured "
+                "motion "
+                f"needs (a matching log gives about 1).{hint}"
+            )
+        if not PLAUSIBLE_RATIO[0] <= ratio <= PLAUSIBLE_RATIO[1]:
+            warnings.append(
+                f"the airframe's k_f and mass give {ratio:.2f} times the force the measured motion needs: "
+                f"k_f, the mass or the motor map of {airframe.name} is off for this vehicle"
+            )
+
+    return FlightSamples(
+        t=t,
+        p_WB_W=np.where(np.isfinite(p), p, 0.0),
+        v_WB_W=np.where(np.isfinite(motion.velocity), motion.velocity, 0.0),
+        a_W=np.where(np.isfinite(motion.acceleration), motion.acceleration, 0.0),
+        euler=np.where(np.isfinite(euler), euler, 0.0),
+        R_WB=R,
+        w_WB_B=w,
+        w_dot_B=w_dot,
+        omega=np.where(np.isfinite(omega), omega, 0.0),
+        valid=valid,
+        segments=segments,
+        chain=chain,
+        rate_chain=MeasurementChain(rate_order, flt, dt),
+        height_known=height_known,
+        position_measured=position_measured,
+        source=source,
+        notes=notes + [f"acceleration: {chain.describe()}"],
+        warnings=warnings,
+    )
+
+
+def _thrust_ratio(airframe: Airframe, omega: FloatArray, s_needed: FloatArray, valid: FloatArray) -> float:
+    needed = airframe.mass_kg * np.linalg.norm(s_needed[valid], axis=1)
+    thrust = airframe.k_f_N_s2 * np.sum(omega[valid] ** 2, axis=1)
+    flying = needed > 0.3 * airframe.mass_kg * GRAVITY_M_S2
+    if not np.any(flying):
+        return math.nan
+    return float(np.median(thrust[flying] / needed[flying]))
+
+
+def describe_range(values: FloatArray, unit: str, fmt: Callable[[float], str] = lambda v: f"{v:.3g}") -> str:
+    """'from a to b unit' (5th to 95th percentile) for messages about excitation."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return "not measured"
+    lo, hi = np.percentile(finite, [5, 95])
+    return f"{fmt(lo)} to {fmt(hi)} {unit}"

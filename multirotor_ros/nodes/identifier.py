@@ -1,0 +1,498 @@
+"""The ``identifier`` node: online identification and rotor fault diagnosis (shared/spec/interfaces.md).
+
+Wiring::
+
+    motor_speeds (JointState) --> validate --+
+    odom (Odometry) ------------> validate --+--> FlightMonitor --------> residuals (Vector3Stamped)
+      or pose (PoseStamped) + imu (Imu) -----+    (diagnosis/monitor.py)   identified_parameters,
+                                                                           diagnostics (DiagnosticArray)
+    FlightMonitor: RLS + window refit, observer, detector, record under record_path
+
+``input``: ``odom`` (state from odometry: pose ENU, twist in body FLU; the acceleration the identifier
+needs is the central difference of the velocity) or ``pose_imu`` (position and attitude from the pose,
+body rates and specific force from the IMU, velocity from position differences, low-passed).
+``residuals`` is published with every processed sample (``sample_rate_hz`` on average);
+``identified_parameters`` and ``diagnostics`` every 1/``publish_rate_hz`` of wall time, and the record
+is flushed every second. Stamps come from the messages, so the node follows simulated time as it is.
+
+Bad input never stops the node: a message that fails validation (wrong rotor count or names,
+non-finite values, a stamp that repeats or goes back) is refused, counted, and logged once per reason
+with throttled summaries after; gaps in the state messages are logged as warnings and restart the
+observer. Detection thresholds are parameters ``detection.*`` that ``ros2 param set`` may change.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Imu, JointState
+
+from multirotor_ros.diagnosis.detection import DetectionSettings
+from multirotor_ros.diagnosis.monitor import FlightMonitor, MonitorSettings, Refused, StepResult
+from multirotor_ros.diagnosis.record import FlightRecord, RecordError
+from multirotor_ros.diagnosis.residuals import ObserverSettings
+from multirotor_ros.ident.rls import OnlineSettings
+from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.effects import EFFECTS, parse_effect_list
+from multirotor_ros.model.rotation import quat_to_matrix
+from multirotor_ros.nodes.common import (
+    ParameterSpec,
+    Refusal,
+    RefusalCounter,
+    check_parameters,
+    declare_parameters,
+    quaternion_from_msg,
+    rotor_speeds_from_joint_state,
+    run_node,
+    stamp_from_ns,
+    stamp_to_ns,
+    state_from_odometry,
+)
+
+# Rotor speeds above this multiple of the airframe's top speed are a unit mistake (rpm), not a reading.
+OVERSIZED_SPEED_FACTOR = 2.0
+# Messages kept while a callback runs: a simulator running faster than real time publishes in bursts,
+# and a dropped state or rotor-speed message is a gap in the data.
+QUEUE_DEPTH = 100
+# Velocity from pose differences (pose_imu input) is low-passed with this time constant [s].
+POSE_VELOCITY_TIME_CONSTANT_S = 0.05
+LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
+
+_DETECTION_HELP = {
+    "k_sigma": ("alarm when a rotor's loss estimate exceeds this many of its standard deviations", "-"),
+    "min_loss": ("... and at least this share of the rotor's thrust", "-"),
+    "persistence_s": ("the alarm condition must hold this long", "s"),
+    "clear_s": ("an alarm clears after this long below half its threshold", "s"),
+    "warmup_s": ("residual noise learnt before any alarm", "s"),
+    "noise_time_constant_s": ("memory of the residual noise estimate", "s"),
+    "baseline_time_constant_s": ("memory of the residual's steady bias", "s"),
+    "noise_floor_fraction": ("noise floor, as a share of a stopped rotor's residual", "-"),
+    "effectiveness_time_constant_s": ("averaging of the effectiveness estimate after an alarm", "s"),
+    "ambiguity_chi2": ("coaxial partners closer than this misfit are both named", "-"),
+    "error_below_effectiveness": ("ERROR below this remaining effectiveness, WARN above", "-"),
+}
+
+
+def identifier_parameters() -> list[ParameterSpec]:
+    """The identifier's parameters; ``detection.*`` may change at run time, the others are read-only."""
+    defaults = DetectionSettings()
+    online = OnlineSettings()
+    observer = ObserverSettings()
+    monitor = MonitorSettings()
+    specs = [
+        ParameterSpec("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
+        ParameterSpec(
+            "effects",
+            "",
+            "effects to fit, comma-separated ids of effects.md; '' = the airframe's "
+            "own fittable effects, 'none' = the thrust constant only",
+            read_only=True,
+        ),
+        ParameterSpec("input", "odom", "state source: 'odom' or 'pose_imu'", read_only=True),
+        ParameterSpec(
+            "window_s", online.window_s, "samples kept for the refit", "s", 1.0, 3600.0, read_only=True
+        ),
+        ParameterSpec(
+            "refit_period_s",
+            online.refit_period_s,
+            "time between refits of the window",
+            "s",
+            0.1,
+            3600.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "forgetting", online.forgetting, "RLS forgetting factor per sample", "-", 0.9, 1.0, read_only=True
+        ),
+        ParameterSpec(
+            "sample_rate_hz",
+            monitor.sample_rate_hz,
+            "state samples processed per second at most",
+            "Hz",
+            10.0,
+            1000.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "max_gap_s",
+            monitor.max_gap_s,
+            "a longer silence in the state messages is a gap",
+            "s",
+            0.001,
+            60.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "motor_speed_max_age_s",
+            monitor.motor_speed_max_age_s,
+            "rotor speeds (and, for pose_imu, a pose) older than this do not go with a state sample",
+            "s",
+            0.001,
+            10.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "max_wait_s",
+            monitor.max_wait_s,
+            "a state sample waits at most this long (of stamps) for the rotor speeds of its time",
+            "s",
+            0.001,
+            10.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "observer_convergence_time_s",
+            observer.convergence_time_s,
+            "super-twisting observer: time to follow a stopped rotor",
+            "s",
+            0.01,
+            10.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "observer_filter_time_constant_s",
+            observer.filter_time_constant_s,
+            "low-pass on the observer's estimate",
+            "s",
+            0.0,
+            1.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "publish_rate_hz",
+            10.0,
+            "rate of identified_parameters and diagnostics",
+            "Hz",
+            0.1,
+            100.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            "record_path", "", "directory of the record (resumed at start); '' = no record", read_only=True
+        ),
+    ]
+    for f in fields(DetectionSettings):
+        meaning, unit = _DETECTION_HELP[f.name]
+        specs.append(
+            ParameterSpec(f"detection.{f.name}", float(getattr(defaults, f.name)), meaning, unit, 0.0, 1e6)
+        )
+    return specs
+
+
+def fittable_effects(airframe_effects: list[str]) -> list[str]:
+    """The airframe's own effects that the online identifier can fit (those with a linear parameter)."""
+    return [
+        e
+        for e in airframe_effects
+        if any(n not in EFFECTS[e].nonlinear_parameters for n in EFFECTS[e].parameter_units)
+    ]
+
+
+class IdentifierNode(Node):
+    """Online identification and diagnosis of one vehicle; see the module docstring."""
+
+    def __init__(self, **kwargs: Any):
+        super().__init__("identifier", **kwargs)
+        specs = identifier_parameters()
+        self._specs = {spec.name: spec for spec in specs}
+        p = declare_parameters(self, specs)
+        self.airframe = load_airframe(p["airframe"])
+        n = self.airframe.n_rotors
+        if p["input"] not in ("odom", "pose_imu"):
+            raise ValueError(f"parameter input must be 'odom' or 'pose_imu', got {p['input']!r}")
+        own = [spec["id"] for spec in self.airframe.effect_specs()]
+        effect_ids = fittable_effects(own) if p["effects"] == "" else parse_effect_list(p["effects"])
+        record = None
+        if p["record_path"]:
+            try:
+                record = FlightRecord(p["record_path"], self.airframe.name, n)
+            except RecordError as error:
+                raise ValueError(str(error)) from error
+        self.monitor = FlightMonitor(
+            self.airframe,
+            effect_ids,
+            OnlineSettings(
+                window_s=p["window_s"], refit_period_s=p["refit_period_s"], forgetting=p["forgetting"]
+            ),
+            ObserverSettings(p["observer_convergence_time_s"], p["observer_filter_time_constant_s"]),
+            self._detection_settings(p),
+            MonitorSettings(p["sample_rate_hz"], p["max_gap_s"], p["motor_speed_max_age_s"], p["max_wait_s"]),
+            record,
+        )
+        self._params = p
+        self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
+        logger = self.get_logger()
+        self._refused = {
+            "motor_speeds": RefusalCounter(logger, "motor_speeds"),
+            "state": RefusalCounter(logger, "odom" if p["input"] == "odom" else "pose/imu"),
+        }
+        self._skipped = RefusalCounter(logger, "state samples (unusable)")
+        # pose_imu: stamp, p_WB_W, q_WB, v_WB_W (from position differences) of the newest pose.
+        self._pose: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._last_stamp_ns = 0
+
+        self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
+        self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.create_subscription(JointState, "motor_speeds", self._on_motor_speeds, QUEUE_DEPTH)
+        if p["input"] == "odom":
+            self.create_subscription(Odometry, "odom", self._on_odometry, QUEUE_DEPTH)
+        else:
+            # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
+            sensor_qos = QoSProfile(
+                depth=QUEUE_DEPTH,
+                reliability=ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.VOLATILE,
+            )
+            self.create_subscription(PoseStamped, "pose", self._on_pose, sensor_qos)
+            self.create_subscription(Imu, "imu", self._on_imu, sensor_qos)
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        wall = self._wall_clock()
+        self.create_timer(1.0 / p["publish_rate_hz"], self._publish_status, clock=wall)
+        self.create_timer(1.0, self._flush_record, clock=wall)
+        for note in self.monitor.notes:
+            logger.info(f"record: {note}")
+        logger.info(
+            f"{self.airframe.name}: fitting {', '.join(effect_ids) or 'the thrust constant only'} "
+            f"(window {p['window_s']:g} s, refit every {p['refit_period_s']:g} s), input {p['input']}"
+            + (f", record in {p['record_path']}" if p["record_path"] else "")
+        )
+
+    # ------------------------------------------------------------------ parameters
+
+    @staticmethod
+    def _detection_settings(p: dict[str, Any]) -> DetectionSettings:
+        return DetectionSettings(
+            **{f.name: float(p[f"detection.{f.name}"]) for f in fields(DetectionSettings)}
+        )
+
+    def _check_parameters(self, parameters: list[Any]) -> Any:
+        result = check_parameters(self._specs, parameters)
+        if result.successful:
+            candidate = dict(self._params)
+            candidate.update({p.name: p.value for p in parameters if p.name in self._specs})
+            try:
+                self._detection_settings(candidate)
+            except ValueError as error:
+                result.successful = False
+                result.reason = str(error)
+        return result
+
+    def _apply_parameters(self, parameters: list[Any]) -> None:
+        changed = {p.name: p.value for p in parameters if p.name in self._specs}
+        self._params.update(changed)
+        if any(name.startswith("detection.") for name in changed):
+            self.monitor.set_detection_settings(self._detection_settings(self._params))
+            self.get_logger().info(f"detection thresholds changed: {changed}")
+
+    def _wall_clock(self) -> Any:
+        from rclpy.clock import Clock, ClockType
+
+        return Clock(clock_type=ClockType.STEADY_TIME)
+
+    # ------------------------------------------------------------------ inputs
+
+    def _on_motor_speeds(self, message: JointState) -> None:
+        result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
+        if isinstance(result, Refusal):
+            self._refused["motor_speeds"].refuse(result.reason, result.detail)
+            return
+        try:
+            outcome = self.monitor.rotor_speeds(result.stamp_ns, result.speeds_rad_s)
+        except (ValueError, ArithmeticError) as error:
+            # The monitor validates its inputs; anything that still fails is counted, not fatal.
+            self._refused["motor_speeds"].refuse("could not be processed", f"{type(error).__name__}: {error}")
+            return
+        if isinstance(outcome, Refused):
+            self._refused["motor_speeds"].refuse(outcome.reason, outcome.detail)
+            return
+        for step in outcome:
+            self._report(step)
+
+    def _on_odometry(self, message: Odometry) -> None:
+        state = state_from_odometry(message)
+        if isinstance(state, Refusal):
+            self._refused["state"].refuse(state.reason, state.detail)
+            return
+        p_WB_W, v_WB_W, q_WB, w_WB_B = state
+        self._take(stamp_to_ns(message.header.stamp), p_WB_W, v_WB_W, q_WB, w_WB_B, None)
+
+    def _on_pose(self, message: PoseStamped) -> None:
+        stamp = stamp_to_ns(message.header.stamp)
+        position = np.array([message.pose.position.x, message.pose.position.y, message.pose.position.z])
+        q_WB = quaternion_from_msg(message.pose.orientation)
+        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(q_WB))):
+            self._refused["state"].refuse("non-finite pose", f"position {position}, orientation {q_WB}")
+            return
+        norm = float(np.linalg.norm(q_WB))
+        if abs(norm - 1.0) > 1e-3:
+            self._refused["state"].refuse(
+                "invalid orientation", f"pose quaternion norm {norm:.6g}, expected 1"
+            )
+            return
+        velocity = np.zeros(3)
+        if self._pose is not None:
+            last_stamp, last_position, _, last_velocity = self._pose
+            if stamp <= last_stamp:
+                self._refused["state"].refuse(
+                    "duplicated stamp" if stamp == last_stamp else "out-of-order stamp",
+                    f"pose stamp {stamp} ns, previous {last_stamp} ns",
+                )
+                return
+            dt = (stamp - last_stamp) * 1e-9
+            if dt <= self._params["max_gap_s"]:
+                blend = 1.0 - math.exp(-dt / POSE_VELOCITY_TIME_CONSTANT_S)
+                velocity = last_velocity + blend * ((position - last_position) / dt - last_velocity)
+        self._pose = (stamp, position, q_WB / norm, velocity)
+
+    def _on_imu(self, message: Imu) -> None:
+        if self._pose is None:
+            self._skipped.refuse("no pose yet", "imu arrived before the first pose")
+            return
+        w_B = np.array([message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z])
+        f_B = np.array(
+            [message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z]
+        )
+        if not (np.all(np.isfinite(w_B)) and np.all(np.isfinite(f_B))):
+            self._refused["state"].refuse("non-finite imu", f"rates {w_B}, specific force {f_B}")
+            return
+        stamp = stamp_to_ns(message.header.stamp)
+        pose_stamp, position, q_WB, velocity = self._pose
+        if abs(stamp - pose_stamp) * 1e-9 > self._params["motor_speed_max_age_s"]:
+            self._skipped.refuse("no recent pose", f"imu at {stamp} ns, newest pose at {pose_stamp} ns")
+            return
+        # The pose's attitude (motion capture) is the better one; the IMU gives rates and specific force.
+        # Specific force is R^T (a - g_vec): a_W = R f_B + g_vec, g_vec = (0, 0, -g).
+        a_W = quat_to_matrix(q_WB) @ f_B
+        a_W[2] -= self.monitor.diagnoser.model.gravity_m_s2
+        self._take(stamp, position, velocity, q_WB, w_B, a_W)
+
+    def _take(self, stamp_ns: int, p_WB_W: Any, v_WB_W: Any, q_WB: Any, w_WB_B: Any, a_W: Any) -> None:
+        try:
+            outcome = self.monitor.state(stamp_ns, p_WB_W, v_WB_W, q_WB, w_WB_B, a_W)
+        except (ValueError, ArithmeticError) as error:
+            # The monitor validates its inputs; anything that still fails is counted, not fatal.
+            self._refused["state"].refuse("could not be processed", f"{type(error).__name__}: {error}")
+            return
+        if isinstance(outcome, Refused):
+            self._refused["state"].refuse(outcome.reason, outcome.detail)
+            return
+        for step in outcome:
+            self._report(step)
+
+    # ------------------------------------------------------------------ outputs
+
+    def _report(self, result: StepResult) -> None:
+        for warning in result.warnings:
+            self.get_logger().warning(warning, throttle_duration_sec=5.0)
+        for event in result.events:
+            self.get_logger().info(event)
+        if result.skipped == "no recent motor_speeds":
+            self._skipped.refuse(
+                result.skipped,
+                f"state at {result.stamp_ns} ns has no rotor speeds within "
+                f"{self._params['motor_speed_max_age_s']:g} s",
+            )
+        if result.accel_residual_W is not None:
+            self._last_stamp_ns = result.stamp_ns
+            message = Vector3Stamped()
+            message.header.stamp = stamp_from_ns(result.stamp_ns)
+            message.header.frame_id = "odom"
+            message.vector.x, message.vector.y, message.vector.z = (float(v) for v in result.accel_residual_W)
+            self._residuals_pub.publish(message)
+        if result.refit is not None:
+            refit = result.refit
+            self.get_logger().info(
+                f"refit at t = {refit.t + self.monitor.clock_offset_s:.1f} s over {refit.n_samples} samples "
+                f"in {1e3 * refit.duration_s:.1f} ms: "
+                + ", ".join(
+                    f"{e.name} = {e.value:.4g} ± {e.std:.2g}"
+                    if e.identifiable
+                    else f"{e.name} = {e.value:.4g} (held: the window cannot tell it)"
+                    for e in refit.estimates
+                )
+            )
+        detection = result.detection
+        if detection is not None and detection.alarm[0] and detection.onset_t[0] == result.t:
+            report = self.monitor.reports()[int(detection.rotor[0])]
+            self.get_logger().error(f"rotor fault: {report.message}")
+
+    def _publish_status(self) -> None:
+        stamp = stamp_from_ns(self._last_stamp_ns)
+        self._parameters_pub.publish(self._parameters_message(stamp))
+        diagnostics = DiagnosticArray()
+        diagnostics.header.stamp = stamp
+        for report in self.monitor.reports():
+            diagnostics.status.append(
+                DiagnosticStatus(
+                    level=LEVELS[report.level],
+                    name=report.name,
+                    message=report.message,
+                    hardware_id=self.airframe.name,
+                    values=[KeyValue(key=k, value=v) for k, v in report.values.items()],
+                )
+            )
+        self._diagnostics_pub.publish(diagnostics)
+
+    def _parameters_message(self, stamp: Any) -> DiagnosticArray:
+        message = DiagnosticArray()
+        message.header.stamp = stamp
+        identifier = self.monitor.identifier
+        refit = identifier.last_refit
+        held = {(e.effect_id, e.name) for e in refit.estimates if not e.identifiable} if refit else set()
+        by_effect: dict[str, list[Any]] = {}
+        for estimate in self.monitor.estimates():
+            by_effect.setdefault(estimate.effect_id, []).append(estimate)
+        for effect_id, estimates in by_effect.items():
+            unclear = [e.name for e in estimates if (e.effect_id, e.name) in held]
+            bounded = [e.name for e in estimates if e.at_bound]
+            text = f"running estimate over {identifier.n_samples} samples"
+            if refit is not None:
+                refit_s = refit.t + self.monitor.clock_offset_s
+                text += f"; last refit at t = {refit_s:.1f} s over {refit.n_samples} samples"
+            if unclear:
+                text += f"; not identifiable from the window (value held): {', '.join(unclear)}"
+            if bounded:
+                text += f"; at a physical bound: {', '.join(bounded)}"
+            values = []
+            for e in estimates:
+                values.append(KeyValue(key=e.name, value=f"{e.value:.6g}"))
+                values.append(KeyValue(key=f"{e.name}_std", value=f"{e.std:.3g}"))
+            message.status.append(
+                DiagnosticStatus(
+                    level=DiagnosticStatus.WARN if unclear or bounded else DiagnosticStatus.OK,
+                    name=effect_id,
+                    message=text,
+                    hardware_id=self.airframe.name,
+                    values=values,
+                )
+            )
+        return message
+
+    def _flush_record(self) -> None:
+        try:
+            self.monitor.flush_record()
+        except OSError as error:
+            self.get_logger().error(f"record: cannot write ({error}); will retry", throttle_duration_sec=10.0)
+
+    def destroy_node(self) -> None:
+        """Write what the record still holds before going."""
+        try:
+            self.monitor.flush_record()
+        except OSError as error:
+            self.get_logger().error(f"record: cannot write at shutdown ({error})")
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run multirotor_ros identifier`` and ``multirotor node identifier``."""
+    return run_node(IdentifierNode, args)

@@ -1,0 +1,188 @@
+"""Observer, detection, isolation and the words of the diagnosis, on controlled inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from multirotor_ros.diagnosis.detection import DetectionSettings, FaultDetector, coaxial_partners
+from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser, rotor_reports
+from multirotor_ros.diagnosis.observer import SuperTwistingObserver, levant_gains
+from multirotor_ros.diagnosis.residuals import stopped_rotor_scales
+from multirotor_ros.model import state as S
+from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.integrator import Integrator
+from multirotor_ros.model.model import Model
+from multirotor_ros.model.rotation import quat_to_matrix
+
+
+def _run_observer(observer, disturbance, noise, rng, dt=0.01, steps=300):
+    y = np.zeros((1, 1))
+    estimates = []
+    for k in range(steps):
+        y = y + dt * disturbance(k * dt)
+        estimates.append(observer.update(dt, y + noise * rng.standard_normal((1, 1)), np.zeros((1, 1)))[0, 0])
+    return np.array(estimates)
+
+
+def test_super_twisting_observer_converges_to_a_step_and_follows_a_ramp():
+    lam, alpha = levant_gains([7.6 / 0.15])
+    observer = SuperTwistingObserver(lam, alpha, filter_time_constant_s=0.03)
+    step = _run_observer(observer, lambda t: 7.6 if t >= 1.0 else 0.0, 0.002, np.random.default_rng(0))
+    # Before the step the estimate is the noise; a step of D is followed at about D/alpha.
+    assert np.abs(step[20:100]).max() < 0.1 * 7.6
+    assert step[100 + 30] > 0.5 * 7.6
+    assert np.abs(step[-50:].mean() - 7.6) < 0.03 * 7.6
+    observer = SuperTwistingObserver(lam, alpha, filter_time_constant_s=0.03)
+    ramp = _run_observer(observer, lambda t: 2.0 * t, 0.0, np.random.default_rng(1))
+    assert ramp[-1] == pytest.approx(2.0 * 2.99, rel=0.05)
+
+
+def test_observer_refuses_inconsistent_gains_and_measurements():
+    with pytest.raises(ValueError, match="positive and finite"):
+        levant_gains([1.0, -1.0])
+    with pytest.raises(ValueError, match="one value per channel"):
+        SuperTwistingObserver([1.0, 2.0], [1.0])
+    observer = SuperTwistingObserver([1.0], [1.0])
+    with pytest.raises(ValueError, match="2 channels, the observer 1"):
+        observer.reset(np.zeros((1, 2)))
+
+
+def test_coaxial_partners_of_the_reference_airframes():
+    assert coaxial_partners(load_airframe("x8_octorotor")).tolist() == [1, 0, 3, 2, 5, 4, 7, 6]
+    assert coaxial_partners(load_airframe("hexarotor_f550")).tolist() == [-1] * 6
+
+
+def _signatures(airframe, omega):
+    return (airframe.allocation * omega**2)[None]
+
+
+def _detector_run(airframe, faulty, loss, noise_scale, rng, settings=None, steps=400, onset=200, dt=0.01):
+    """Synthetic wrench residuals: noise, then -loss * signature of ``faulty`` from ``onset``."""
+    omega = np.full(airframe.n_rotors, Model(airframe).hover_speed_rad_s())
+    signatures = _signatures(airframe, omega)
+    _, scale = stopped_rotor_scales(Model(airframe))
+    detector = FaultDetector(scale, coaxial_partners(airframe), 1, settings)
+    outputs = []
+    for k in range(steps):
+        residual = noise_scale * scale * rng.standard_normal(4)
+        if k >= onset:
+            residual = residual - loss * signatures[0, :, faulty]
+        outputs.append(detector.update(k * dt, dt, residual[None], signatures))
+    return detector, outputs
+
+
+@pytest.mark.parametrize("airframe_name", ["x8_octorotor", "hexarotor_f550"])
+@pytest.mark.parametrize("faulty", [0, 1, 4])
+def test_detector_isolates_the_rotor_and_estimates_its_effectiveness(airframe_name, faulty):
+    airframe = load_airframe(airframe_name)
+    _, outputs = _detector_run(airframe, faulty, 0.6, 0.01, np.random.default_rng(faulty))
+    assert not any(o.alarm[0] for o in outputs[:200])
+    alarmed = [k for k, o in enumerate(outputs) if o.alarm[0]]
+    assert alarmed and alarmed[0] - 200 <= 10  # persistence 0.05 s at 100 Hz, plus a sample
+    final = outputs[-1]
+    assert final.rotor[0] == faulty
+    assert final.effectiveness[0, faulty] == pytest.approx(0.4, abs=0.03)
+    assert np.all(np.delete(final.effectiveness[0], faulty) == 1.0)
+
+
+def test_threshold_adapts_to_the_residual_noise():
+    airframe = load_airframe("hexarotor_f550")
+    quiet, _ = _detector_run(airframe, 0, 0.0, 0.01, np.random.default_rng(1), steps=300)
+    noisy, _ = _detector_run(airframe, 0, 0.0, 0.1, np.random.default_rng(1), steps=300)
+    ratio = noisy.noise_std / quiet.noise_std
+    np.testing.assert_allclose(ratio, 10.0, rtol=0.25)
+    # A 25 % loss stands out of the quiet residual but not of one ten times noisier.
+    _, quiet_run = _detector_run(airframe, 2, 0.25, 0.01, np.random.default_rng(2))
+    _, noisy_run = _detector_run(airframe, 2, 0.25, 0.1, np.random.default_rng(2))
+    assert quiet_run[-1].alarm[0]
+    assert not any(o.alarm[0] for o in noisy_run)
+
+
+def test_alarm_clears_when_the_rotor_recovers():
+    airframe = load_airframe("hexarotor_f550")
+    omega = np.full(6, Model(airframe).hover_speed_rad_s())
+    signatures = _signatures(airframe, omega)
+    _, scale = stopped_rotor_scales(Model(airframe))
+    detector = FaultDetector(scale, coaxial_partners(airframe), 1, DetectionSettings(clear_s=0.5))
+    rng = np.random.default_rng(3)
+    history = []
+    for k in range(500):
+        residual = 0.01 * scale * rng.standard_normal(4)
+        if 150 <= k < 250:
+            residual = residual - signatures[0, :, 3]
+        history.append(detector.update(k * 0.01, 0.01, residual[None], signatures).alarm[0])
+    assert history[200] and not history[140]
+    assert not history[-1]
+    assert 300 <= history.index(False, 250) <= 330  # cleared 0.5 s after the residual went away
+
+
+def test_coaxial_pair_is_named_when_the_yaw_residual_cannot_separate_it():
+    airframe = load_airframe("x8_octorotor")
+    # A yaw channel a hundred times noisier than a rotor's drag torque: rotors 1 and 2 look alike.
+    omega = np.full(8, Model(airframe).hover_speed_rad_s())
+    signatures = _signatures(airframe, omega)
+    _, scale = stopped_rotor_scales(Model(airframe))
+    detector = FaultDetector(scale, coaxial_partners(airframe), 1)
+    rng = np.random.default_rng(4)
+    noise = scale * np.array([0.01, 0.01, 0.01, 1.0])
+    for k in range(300):
+        residual = noise * rng.standard_normal(4) - (signatures[0, :, 0] if k >= 150 else 0.0)
+        output = detector.update(k * 0.01, 0.01, residual[None], signatures)
+    assert output.alarm[0] and output.rotor[0] in (0, 1)
+    assert output.partner_ambiguous[0]
+    reports = rotor_reports(output, 8, coaxial_partners(airframe), 0.5)
+    faulty = reports[output.rotor[0]]
+    assert faulty.level == "ERROR"
+    assert "coaxial partner rotor" in faulty.message and "check both" in faulty.message
+
+
+def test_reports_are_readable_per_rotor():
+    airframe = load_airframe("hexarotor_f550")
+    _, outputs = _detector_run(airframe, 4, 0.5, 0.01, np.random.default_rng(5))
+    reports = rotor_reports(outputs[-1], 6, coaxial_partners(airframe), 0.5)
+    assert [r.name for r in reports] == [f"rotor_{k}" for k in range(1, 7)]
+    assert [r.level for r in reports] == ["OK"] * 4 + ["WARN", "OK"]
+    assert reports[4].message.startswith("rotor 5 is losing thrust: about 50 % of its thrust left")
+    assert reports[0].message == "rotor 1: no fault of its own (rotor 5 is faulty)"
+    assert reports[4].values["effectiveness"] == f"{reports[4].effectiveness:.2f}"
+    waiting = rotor_reports(None, 6, coaxial_partners(airframe), 0.5)
+    assert all(r.level == "OK" and "no verdict yet" in r.message for r in waiting)
+
+
+def test_detection_settings_refuse_nonsense():
+    with pytest.raises(ValueError, match="min_loss must be in"):
+        DetectionSettings(min_loss=1.5)
+    with pytest.raises(ValueError, match="k_sigma"):
+        DetectionSettings(k_sigma=0.0)
+    with pytest.raises(ValueError, match="persistence_s"):
+        DetectionSettings(persistence_s=float("nan"))
+
+
+def test_diagnoser_on_a_noise_free_flight_finds_a_stopped_rotor_and_keeps_quiet_before():
+    """The whole chain on an exact model (no controller): open-loop hover, rotor 3 stops at 1.5 s."""
+    airframe = load_airframe("hexarotor_f550")
+    model = Model(airframe)
+    truth = Model(airframe, [{"id": "actuator_fault", "motor": 3, "effectiveness": 0.0, "t_fault_s": 1.5}])
+    integrator = Integrator(truth, 0.002, ground_height_m=None)
+    x = S.make_state(6, position_m=(0, 0, 10), rotor_speed_rad_s=model.hover_speed_rad_s())
+    u = np.full((1, 6), model.hover_speed_rad_s())
+    diagnoser = RotorDiagnoser(model)
+    first_alarm = None
+    for k in range(200):
+        t = 0.01 * k
+        out = diagnoser.update(
+            t,
+            0.01,
+            x[:, S.POSITION],
+            x[:, S.VELOCITY],
+            quat_to_matrix(x[:, S.QUATERNION]),
+            x[:, S.BODY_RATE],
+            x[:, S.ROTORS_START :],
+        )
+        if out.detection is not None and out.detection.alarm[0] and first_alarm is None:
+            first_alarm = (t, int(out.detection.rotor[0]))
+        x = integrator.advance(t, x, u, 5)
+    assert first_alarm is not None
+    assert 1.5 < first_alarm[0] <= 1.7 and first_alarm[1] == 2
+    assert diagnoser.last is not None and diagnoser.last.effectiveness[0, 2] < 0.05
