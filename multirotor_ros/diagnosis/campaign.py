@@ -19,6 +19,7 @@ fault to count false alarms over a long flight.
 from __future__ import annotations
 
 import math
+import multiprocessing
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -268,7 +269,9 @@ def fly_all(
     jobs = [(airframe, case, duration_s) for case in cases]
     if processes <= 1:
         return [_fly(job) for job in jobs]
-    with ProcessPoolExecutor(processes) as pool:
+    # Fresh interpreters, not forks: a fork of a process whose numba kernels already ran on OpenMP
+    # threads (or that holds rclpy's threads, as a test session may) is unsafe and dies in the child.
+    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
         return list(pool.map(_fly, jobs))
 
 
