@@ -10,13 +10,13 @@ from __future__ import annotations
 import base64
 import html
 import json
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from multirotor_ros.discrepancy.regimes import regime_variables
+from multirotor_ros.ident.identify import json_safe
 from multirotor_ros.ident.metrics import AXES, horizon_position_error, model_acceleration
 from multirotor_ros.ident.plots import plot_axes, plot_bars, plot_binned
 
@@ -30,20 +30,9 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def _clean(value: Any) -> Any:
-    """NaN and infinities are not JSON: they become null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_clean(v) for v in value]
-    return value
-
-
 def dumps(document: dict[str, Any]) -> str:
     """JSON text of a report dict (NaN as null)."""
-    return json.dumps(_clean(document), indent=2, default=_json_default)
+    return json.dumps(json_safe(document), indent=2, default=_json_default)
 
 
 def make_plots(report: DiscrepancyReport, out_dir: Path) -> list[Path]:

@@ -170,7 +170,7 @@ class IdentificationResult:
         out.mkdir(parents=True, exist_ok=True)
         written = []
         json_path = out / "identified.json"
-        json_path.write_text(json.dumps(_clean(self.to_json()), indent=2) + "\n", encoding="utf-8")
+        json_path.write_text(json.dumps(json_safe(self.to_json()), indent=2) + "\n", encoding="utf-8")
         written.append(json_path)
         yaml_path = out / f"{self.airframe.name}_identified.yaml"
         header = [
@@ -262,13 +262,14 @@ class IdentificationResult:
         )
 
 
-def _clean(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
+    """A JSON-ready copy of nested dicts and lists: NaN and infinities (not JSON) become null."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     return value
 
 
