@@ -30,6 +30,7 @@ from multirotor_ros.ident.rls import OnlineIdentifier, OnlineSettings, Recursive
 from multirotor_ros.model.airframe import load_airframe  # noqa: E402
 from multirotor_ros.model.model import Model  # noqa: E402
 from multirotor_ros.model.rotation import euler_to_matrix  # noqa: E402
+from multirotor_ros.model.state import StateBatch  # noqa: E402
 
 UPDATE_LIMIT_S = 100e-6
 REFIT_LIMIT_S = 50e-3
@@ -71,7 +72,7 @@ def flight_samples(airframe_name: str, n: int, seed: int = 1):
     R = euler_to_matrix(rng.normal(0.0, 0.1, (n, 3)))
     w = rng.normal(0.0, 0.3, (n, 3))
     omega = rng.uniform(300.0, 380.0, (n, airframe.n_rotors))
-    a, _ = truth.accelerations(truth.context(t, p, v, R, w, omega))
+    a, _ = truth.accelerations(truth.context(StateBatch(t, p, v, R, w, omega)))
     return airframe, (t, p, v, R, w, omega, a + rng.normal(0.0, 0.2, a.shape))
 
 

@@ -15,6 +15,7 @@ from multirotor_ros.model.compiled import CompiledStepper
 from multirotor_ros.model.effects import EFFECTS, Effect, make_effect, parse_effect_list
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import euler_to_matrix
+from multirotor_ros.model.state import StateBatch
 
 X8 = load_airframe("x8_octorotor")
 SAMPLE_PARAMETERS = {
@@ -102,12 +103,14 @@ def test_compiled_kernel_matches_the_reference_model(effect_id: str) -> None:
 def _level_context(model: Model, v=(0.0, 0.0, 0.0), z=10.0, omega=340.0, t=0.0, euler=(0.0, 0.0, 0.0)):
     R = euler_to_matrix(np.array([euler]))
     return model.context(
-        t,
-        np.array([[0.0, 0.0, z]]),
-        np.array([v], float),
-        R,
-        np.zeros((1, 3)),
-        np.broadcast_to(np.asarray(omega, float), (1, 8)).copy(),
+        StateBatch(
+            t,
+            np.array([[0.0, 0.0, z]]),
+            np.array([v], float),
+            R,
+            np.zeros((1, 3)),
+            np.broadcast_to(np.asarray(omega, float), (1, 8)).copy(),
+        )
     )
 
 
@@ -202,7 +205,9 @@ def test_gyroscopic_torque_by_hand() -> None:
     model = Model(X8, [{"id": "gyroscopic", "j_r": 1e-4}])
     omega = np.array([[300.0, 310, 320, 330, 340, 350, 360, 370]])
     ctx = model.context(
-        0.0, np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.array([[0.5, -0.2, 0.0]]), omega
+        StateBatch(
+            0.0, np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.array([[0.5, -0.2, 0.0]]), omega
+        )
     )
     _, tau, _ = model.wrench(ctx)
     _, tau0, _ = Model(X8, []).wrench(ctx)

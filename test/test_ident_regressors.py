@@ -15,6 +15,7 @@ from multirotor_ros.model.airframe import GRAVITY_M_S2, load_airframe
 from multirotor_ros.model.effects import EFFECTS, TRANSLATIONAL_EFFECTS
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import euler_to_matrix
+from multirotor_ros.model.state import StateBatch
 
 X8 = load_airframe("x8_octorotor")
 HEXA = load_airframe("hexarotor_f550")
@@ -104,7 +105,7 @@ def test_y_equals_phi_theta_for_data_made_by_the_model(airframe, effect_id):
     cls = EFFECTS[effect_id]
     truth = Model(airframe, [{"id": effect_id, **{k: TRUE_VALUES[k] for k in cls.parameter_units}}])
     s = batch(airframe)
-    ctx = truth.context(s["t"], s["p"], s["v"], s["R"], s["w"], s["omega"])
+    ctx = truth.context(StateBatch(s["t"], s["p"], s["v"], s["R"], s["w"], s["omega"]))
     a_true = truth.accelerations(ctx)[0]
     refs = linear_refs(truth, [effect_id], include_k_f=True)
     if effect_id == "actuator_fault":
@@ -135,7 +136,7 @@ def test_nonlinear_parameters_are_refused_with_the_reason():
 def test_neutral_effects_change_nothing():
     s = batch(X8)
     base = Model(X8, [])
-    ctx = base.context(s["t"], s["p"], s["v"], s["R"], s["w"], s["omega"])
+    ctx = base.context(StateBatch(s["t"], s["p"], s["v"], s["R"], s["w"], s["omega"]))
     reference = base.wrench(ctx)[0]
     for effect_id in TRANSLATIONAL_EFFECTS:
         if effect_id == "motor_lag":

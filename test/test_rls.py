@@ -11,6 +11,7 @@ from multirotor_ros.ident.rls import OnlineIdentifier, OnlineSettings, Recursive
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import euler_to_matrix
+from multirotor_ros.model.state import StateBatch
 
 
 def _linear_data(rng: np.random.Generator, theta: np.ndarray, n: int, noise: float):
@@ -93,7 +94,7 @@ def _random_flight(truth: Model, rng: np.random.Generator, n: int, vertical_spee
     R = euler_to_matrix(rng.normal(0.0, 0.1, (n, 3)))
     w = rng.normal(0.0, 0.3, (n, 3))
     omega = rng.uniform(300.0, 380.0, (n, truth.n_rotors))
-    a, _ = truth.accelerations(truth.context(t, p, v, R, w, omega))
+    a, _ = truth.accelerations(truth.context(StateBatch(t, p, v, R, w, omega)))
     return t, p, v, R, w, omega, a + rng.normal(0.0, 0.3, a.shape)
 
 

@@ -31,6 +31,7 @@ from multirotor_ros.diagnosis.observer import SuperTwistingObserver, levant_gain
 from multirotor_ros.model.effects import EffectContext
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.state import StateBatch
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,7 @@ class WrenchResidualGenerator:
 
         ``a_W``: measured acceleration (world, gravity excluded); without it the velocity is used.
         """
-        ctx = self.model.context(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega)
+        ctx = self.model.context(StateBatch(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega))
         a_model_W, w_dot_model_B = self.model.accelerations(ctx)
         model_change = None
         if self._previous_model is not None:

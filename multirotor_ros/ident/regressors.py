@@ -31,6 +31,7 @@ from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef
 from multirotor_ros.model.effects import EFFECTS, Effect, EffectContext
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.state import StateBatch
 
 # Not linear in general, but linear once the others of their effect are fixed: the fault's effectiveness
 # multiplies the faulty rotor's thrust from the (fixed) onset on.
@@ -220,7 +221,7 @@ class ForceRegressor:
         a_W: FloatArray,
     ) -> tuple[FloatArray, FloatArray]:
         """:meth:`__call__` on plain arrays (all with leading axis B)."""
-        ctx = self.model.context(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega)
+        ctx = self.model.context(StateBatch(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega))
         return self(ctx, a_W)
 
     @property

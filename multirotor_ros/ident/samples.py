@@ -38,6 +38,7 @@ from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
 from multirotor_ros.model.effects import EffectContext
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix
+from multirotor_ros.model.state import StateBatch
 
 # A time step longer than this many median steps is a gap: nothing is derived or integrated across it.
 GAP_FACTOR = 2.5
@@ -163,12 +164,14 @@ class FlightSamples:
         index = slice(None) if rows is None else rows
         speeds = self.omega if omega is None else omega
         return model.context(
-            self.t[index],
-            self.p_WB_W[index],
-            self.v_WB_W[index],
-            self.R_WB[index],
-            self.w_WB_B[index],
-            speeds[index],
+            StateBatch(
+                self.t[index],
+                self.p_WB_W[index],
+                self.v_WB_W[index],
+                self.R_WB[index],
+                self.w_WB_B[index],
+                speeds[index],
+            )
         )
 
     def through_chain(self, values: FloatArray) -> FloatArray:

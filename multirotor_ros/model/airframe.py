@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotors import rotor_signatures
 from multirotor_ros.resources import config_directory
 
 GRAVITY_M_S2 = 9.81
@@ -131,15 +132,8 @@ class Airframe:
         Column i: thrust k_f along +z at p_i gives torque p_i x (0, 0, k_f) = (k_f y_i, -k_f x_i, 0);
         the rotor's drag adds spin_sign * k_t about z.
         """
-        p = self.rotor_positions_m
-        return np.vstack(
-            [
-                np.full(self.n_rotors, self.k_f_N_s2),
-                self.k_f_N_s2 * p[:, 1],
-                -self.k_f_N_s2 * p[:, 0],
-                self.spin_signs * self.k_t_N_m_s2,
-            ]
-        )
+        ones = np.ones(self.n_rotors)
+        return rotor_signatures(self, self.k_f_N_s2 * ones, self.k_t_N_m_s2 * ones)
 
     def effect_specs(self) -> list[dict[str, Any]]:
         """The airframe's own effect list, as plain dicts (``id`` plus parameters)."""

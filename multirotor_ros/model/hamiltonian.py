@@ -23,6 +23,7 @@ import numpy as np
 from multirotor_ros.model import state as S
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix, quat_to_euler
+from multirotor_ros.model.state import StateBatch
 
 ROTORS_START = 12
 
@@ -93,7 +94,7 @@ class HamiltonianModel:
         model = self.model
         v_W, eta_dot, w_B, W = self.velocities(X)
         omega = X[:, ROTORS_START:] if model.rotor_time_constant_s is not None else u
-        ctx = model.context(t, X[:, 0:3], v_W, euler_to_matrix(X[:, 3:6]), w_B, omega)
+        ctx = model.context(StateBatch(t, X[:, 0:3], v_W, euler_to_matrix(X[:, 3:6]), w_B, omega))
         F_W, tau_B, _ = model.wrench(ctx)
         # -dH/deta_k = (1/2) eta_dot^T dJ/deta_k eta_dot = (dW/deta_k eta_dot) . (I w_B).
         angular_momentum_B = w_B @ model.inertia_kg_m2.T

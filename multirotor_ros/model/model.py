@@ -19,7 +19,7 @@ from scipy.optimize import brentq
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
 from multirotor_ros.model.effects import Effect, EffectContext, make_effect
-from multirotor_ros.model.rotation import FloatArray, quat_multiply, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray, quat_multiply
 
 
 class Model:
@@ -94,24 +94,15 @@ class Model:
 
     # ------------------------------------------------------------------ forces
 
-    def context(
-        self,
-        t: ArrayLike,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        R_WB: FloatArray,
-        w_WB_B: FloatArray,
-        omega: FloatArray,
-    ) -> EffectContext:
-        """Bundle a batch of states for the effects (all arrays have leading axis B)."""
-        batch = p_WB_W.shape[0]
+    def context(self, state: S.StateBatch) -> EffectContext:
+        """A batch of states with what the effects need of the airframe."""
         return EffectContext(
-            t=np.broadcast_to(np.asarray(t, dtype=float), (batch,)),
-            p_WB_W=p_WB_W,
-            v_WB_W=v_WB_W,
-            R_WB=R_WB,
-            w_WB_B=w_WB_B,
-            omega=omega,
+            t=state.t,
+            p_WB_W=state.p_WB_W,
+            v_WB_W=state.v_WB_W,
+            R_WB=state.R_WB,
+            w_WB_B=state.w_WB_B,
+            omega=state.omega,
             rotor_positions_m=self.airframe.rotor_positions_m,
             lower_rotor_mask=self.airframe.lower_rotor_mask,
             spin_signs=self.airframe.spin_signs,
@@ -195,7 +186,7 @@ class Model:
         u = np.broadcast_to(np.asarray(u, dtype=float), (x.shape[0], self.n_rotors))
         omega = self.effective_rotor_speeds(x, u)
         q = x[:, S.QUATERNION]
-        ctx = self.context(t, x[:, S.POSITION], x[:, S.VELOCITY], quat_to_matrix(q), x[:, S.BODY_RATE], omega)
+        ctx = self.context(S.StateBatch.from_flat(t, x, omega))
         a_W, w_dot_B = self.accelerations(ctx)
         dx = np.empty_like(x)
         dx[:, S.POSITION] = x[:, S.VELOCITY]
@@ -239,9 +230,7 @@ class Model:
 
         def vertical_acceleration(speed: float) -> float:
             omega = np.full((1, self.n_rotors), speed)
-            ctx = self.context(
-                1e9, x[:, S.POSITION], x[:, S.VELOCITY], np.eye(3)[None], x[:, S.BODY_RATE], omega
-            )
+            ctx = self.context(S.StateBatch.from_flat(1e9, x, omega))
             a_W, _ = self.accelerations(ctx)
             return float(a_W[0, 2])
 

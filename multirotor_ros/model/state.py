@@ -11,10 +11,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike
 
-from multirotor_ros.model.rotation import FloatArray, euler_to_quat
+from multirotor_ros.model.rotation import FloatArray, euler_to_quat, quat_to_matrix
 
 POSITION = slice(0, 3)
 VELOCITY = slice(3, 6)
@@ -45,3 +48,62 @@ def make_state(
     x[:, BODY_RATE] = body_rate_rad_s
     x[:, ROTORS_START:] = rotor_speed_rad_s
     return x
+
+
+@dataclass(frozen=True)
+class StateBatch:
+    """Measured or simulated states of B vehicles (or B samples of one log), frames in the names.
+
+    The one value the model, the identifier and the observers pass around instead of seven arrays.
+    """
+
+    t: FloatArray  # (B,) time [s]
+    p_WB_W: FloatArray  # (B, 3) position of the body origin in world ENU [m]
+    v_WB_W: FloatArray  # (B, 3) velocity in world ENU [m/s]
+    R_WB: FloatArray  # (B, 3, 3) attitude, body FLU -> world ENU
+    w_WB_B: FloatArray  # (B, 3) body rate in FLU [rad/s]
+    omega: FloatArray  # (B, N) rotor speeds that make thrust [rad/s]
+    a_WB_W: FloatArray | None = None  # (B, 3) measured acceleration, world ENU, gravity excluded [m/s^2]
+
+    def __post_init__(self) -> None:
+        batch = self.p_WB_W.shape[0]
+        object.__setattr__(self, "t", np.broadcast_to(np.asarray(self.t, dtype=float), (batch,)))
+
+    @classmethod
+    def from_flat(cls, t: ArrayLike, x: FloatArray, omega: FloatArray) -> StateBatch:
+        """From flat states (B, 13 + N) and the rotor speeds that make thrust (B, N)."""
+        return cls(
+            t=np.asarray(t, dtype=float),
+            p_WB_W=x[:, POSITION],
+            v_WB_W=x[:, VELOCITY],
+            R_WB=quat_to_matrix(x[:, QUATERNION]),
+            w_WB_B=x[:, BODY_RATE],
+            omega=omega,
+        )
+
+    @property
+    def size(self) -> int:
+        """B, the number of states."""
+        return int(self.p_WB_W.shape[0])
+
+    @property
+    def e_z_W(self) -> FloatArray:
+        """Body z axis in world, (B, 3): the thrust direction."""
+        return self.R_WB[:, :, 2]
+
+    def select(self, rows: ArrayLike) -> StateBatch:
+        """The states at ``rows`` (an index array, a slice or a boolean mask)."""
+        index = rows if isinstance(rows, slice) else np.asarray(rows)
+        return StateBatch(
+            t=self.t[index],
+            p_WB_W=self.p_WB_W[index],
+            v_WB_W=self.v_WB_W[index],
+            R_WB=self.R_WB[index],
+            w_WB_B=self.w_WB_B[index],
+            omega=self.omega[index],
+            a_WB_W=None if self.a_WB_W is None else self.a_WB_W[index],
+        )
+
+    def with_omega(self, omega: FloatArray) -> StateBatch:
+        """The same states with other rotor speeds (the lagged ones of a motor_lag model, say)."""
+        return dataclasses.replace(self, omega=omega)
