@@ -20,6 +20,7 @@ import os
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
+import dataclasses  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -27,7 +28,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from multirotor_ros.ident.rls import OnlineIdentifier, OnlineSettings, RecursiveLeastSquares  # noqa: E402
-from multirotor_ros.model.airframe import load_airframe  # noqa: E402
+from multirotor_ros.model.airframe import Airframe, load_airframe  # noqa: E402
 from multirotor_ros.model.model import Model  # noqa: E402
 from multirotor_ros.model.rotation import euler_to_matrix  # noqa: E402
 from multirotor_ros.model.state import StateBatch  # noqa: E402
@@ -62,28 +63,33 @@ def time_rls_update(
     return cpu, wall
 
 
-def flight_samples(airframe_name: str, n: int, seed: int = 1):
+def flight_samples(airframe_name: str, n: int, seed: int = 1) -> tuple[Airframe, list[StateBatch]]:
+    """A random flight of ``n`` samples with noisy accelerations, one StateBatch per sample (as a node)."""
     airframe = load_airframe(airframe_name)
     truth = Model(airframe, [{"id": "quadratic_drag", "c_x": 0.4, "c_y": 0.5, "c_z": 0.2}])
     rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.01
-    p = np.column_stack([np.zeros(n), np.zeros(n), np.full(n, 3.0)])
-    v = rng.normal(0.0, 1.5, (n, 3))
-    R = euler_to_matrix(rng.normal(0.0, 0.1, (n, 3)))
-    w = rng.normal(0.0, 0.3, (n, 3))
-    omega = rng.uniform(300.0, 380.0, (n, airframe.n_rotors))
-    a, _ = truth.accelerations(truth.context(StateBatch(t, p, v, R, w, omega)))
-    return airframe, (t, p, v, R, w, omega, a + rng.normal(0.0, 0.2, a.shape))
+    flight = StateBatch(
+        t=np.arange(n) * 0.01,
+        p_WB_W=np.column_stack([np.zeros(n), np.zeros(n), np.full(n, 3.0)]),
+        v_WB_W=rng.normal(0.0, 1.5, (n, 3)),
+        R_WB=euler_to_matrix(rng.normal(0.0, 0.1, (n, 3))),
+        w_WB_B=rng.normal(0.0, 0.3, (n, 3)),
+        omega=rng.uniform(300.0, 380.0, (n, airframe.n_rotors)),
+    )
+    a, _ = truth.accelerations(truth.context(flight))
+    flight = dataclasses.replace(flight, a_WB_W=a + rng.normal(0.0, 0.2, a.shape))
+    return airframe, [flight.select(slice(k, k + 1)) for k in range(n)]
 
 
 def time_identifier(effects: list[str], repeats: int = 7) -> dict[str, tuple[list[float], list[float]]]:
-    airframe, (t, p, v, R, w, omega, a) = flight_samples("x8_octorotor", 6000)
+    airframe, samples = flight_samples("x8_octorotor", 6000)
     identifier = OnlineIdentifier(airframe, effects, OnlineSettings(window_s=60.0, refit_period_s=5.0))
     started, started_cpu = time.perf_counter(), time.process_time()
-    for k in range(t.size):
-        identifier.add(t[k], p[k], v[k], R[k], w[k], omega[k], a[k])
+    for sample in samples:
+        identifier.add(sample)
     identifier.flush()
-    per_sample = ([(time.process_time() - started_cpu) / t.size], [(time.perf_counter() - started) / t.size])
+    n = len(samples)
+    per_sample = ([(time.process_time() - started_cpu) / n], [(time.perf_counter() - started) / n])
     identifier.refit()  # untimed: the first call also imports and initialises the solvers
     cpu, wall = [], []
     for _ in range(repeats):

@@ -13,7 +13,6 @@ from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.integrator import Integrator
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import quat_to_matrix
 
 
 def _run_observer(observer, disturbance, noise, rng, dt=0.01, steps=300):
@@ -171,15 +170,7 @@ def test_diagnoser_on_a_noise_free_flight_finds_a_stopped_rotor_and_keeps_quiet_
     first_alarm = None
     for k in range(200):
         t = 0.01 * k
-        out = diagnoser.update(
-            t,
-            0.01,
-            x[:, S.POSITION],
-            x[:, S.VELOCITY],
-            quat_to_matrix(x[:, S.QUATERNION]),
-            x[:, S.BODY_RATE],
-            x[:, S.ROTORS_START :],
-        )
+        out = diagnoser.update(S.StateBatch.from_flat(t, x, x[:, S.ROTORS_START :]), 0.01)
         if out.detection is not None and out.detection.alarm[0] and first_alarm is None:
             first_alarm = (t, int(out.detection.rotor[0]))
         x = integrator.advance(t, x, u, 5)

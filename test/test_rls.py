@@ -86,16 +86,25 @@ def test_state_round_trip_and_refusal_of_a_broken_state():
         RecursiveLeastSquares.from_state({"theta": np.zeros(2)})
 
 
-def _random_flight(truth: Model, rng: np.random.Generator, n: int, vertical_speed: float = 2.0):
-    t = np.arange(n) * 0.01
-    p = np.zeros((n, 3))
+def _random_flight(truth: Model, rng: np.random.Generator, n: int, vertical_speed: float = 2.0) -> StateBatch:
     v = rng.normal(0.0, 2.0, (n, 3))
     v[:, 2] *= vertical_speed / 2.0
-    R = euler_to_matrix(rng.normal(0.0, 0.1, (n, 3)))
-    w = rng.normal(0.0, 0.3, (n, 3))
-    omega = rng.uniform(300.0, 380.0, (n, truth.n_rotors))
-    a, _ = truth.accelerations(truth.context(StateBatch(t, p, v, R, w, omega)))
-    return t, p, v, R, w, omega, a + rng.normal(0.0, 0.3, a.shape)
+    flight = StateBatch(
+        t=np.arange(n) * 0.01,
+        p_WB_W=np.zeros((n, 3)),
+        v_WB_W=v,
+        R_WB=euler_to_matrix(rng.normal(0.0, 0.1, (n, 3))),
+        w_WB_B=rng.normal(0.0, 0.3, (n, 3)),
+        omega=rng.uniform(300.0, 380.0, (n, truth.n_rotors)),
+    )
+    a, _ = truth.accelerations(truth.context(flight))
+    return dataclasses.replace(flight, a_WB_W=a + rng.normal(0.0, 0.3, a.shape))
+
+
+def _add_one_by_one(identifier: OnlineIdentifier, flight: StateBatch) -> None:
+    """As the identifier node does: sample after sample."""
+    for k in range(flight.size):
+        identifier.add(flight.select(slice(k, k + 1)))
 
 
 def test_online_identifier_recovers_thrust_constant_and_drag():
@@ -104,10 +113,9 @@ def test_online_identifier_recovers_thrust_constant_and_drag():
         dataclasses.replace(airframe, k_f_N_s2=1.05 * airframe.k_f_N_s2),
         [{"id": "quadratic_drag", "c_x": 0.3, "c_y": 0.5, "c_z": 0.1}],
     )
-    t, p, v, R, w, omega, a = _random_flight(truth, np.random.default_rng(4), 3000)
+    flight = _random_flight(truth, np.random.default_rng(4), 3000)
     identifier = OnlineIdentifier(airframe, ["quadratic_drag"], OnlineSettings(window_s=20.0))
-    for k in range(t.size):
-        identifier.add(t[k], p[k], v[k], R[k], w[k], omega[k], a[k])
+    _add_one_by_one(identifier, flight)
     running = {e.name: e for e in identifier.estimates()}
     assert running["k_f_N_s2"].value == pytest.approx(1.05 * airframe.k_f_N_s2, rel=0.01)
     assert running["c_x"].value == pytest.approx(0.3, abs=0.02)
@@ -126,10 +134,9 @@ def test_refit_holds_what_the_window_cannot_see():
     airframe = load_airframe("x8_octorotor")
     truth = Model(airframe, [{"id": "quadratic_drag", "c_x": 0.4688, "c_y": 0.4688, "c_z": 0.3}])
     # No vertical speed at all: c_z has no column; it keeps the configured value (0 for the X8).
-    t, p, v, R, w, omega, a = _random_flight(truth, np.random.default_rng(5), 1000, vertical_speed=0.0)
+    flight = _random_flight(truth, np.random.default_rng(5), 1000, vertical_speed=0.0)
     identifier = OnlineIdentifier(airframe, ["quadratic_drag"], OnlineSettings(window_s=60.0))
-    for k in range(t.size):
-        identifier.add(t[k], p[k], v[k], R[k], w[k], omega[k], a[k])
+    _add_one_by_one(identifier, flight)
     refit = identifier.refit()
     assert refit is not None
     fitted = {e.name: e for e in refit.estimates}
@@ -145,25 +152,31 @@ def test_online_identifier_refuses_effects_it_cannot_fit_and_stale_samples():
     with pytest.raises(ValueError, match="unknown effect 'drag'"):
         OnlineIdentifier(airframe, ["drag"])
     identifier = OnlineIdentifier(airframe, [])
-    args = (np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3), np.full(8, 340.0), np.zeros(3))
-    identifier.add(1.0, *args)
+    sample = StateBatch(
+        [1.0], np.zeros((1, 3)), np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.full((1, 8), 340.0)
+    )
+    with pytest.raises(ValueError, match="measured acceleration"):
+        identifier.add(sample)
+    sample = dataclasses.replace(sample, a_WB_W=np.zeros((1, 3)))
+    identifier.add(sample)
     with pytest.raises(ValueError, match="not newer"):
-        identifier.add(1.0, *args)
+        identifier.add(sample)
 
 
 def test_window_keeps_only_the_last_window_s():
     airframe = load_airframe("quad_x")
     identifier = OnlineIdentifier(airframe, [], OnlineSettings(window_s=2.0, min_refit_samples=10))
-    for k in range(1000):
-        identifier.add(
-            0.01 * k,
-            np.zeros(3),
-            np.zeros(3),
-            np.eye(3),
-            np.zeros(3),
-            np.full(airframe.n_rotors, 400.0),
-            np.zeros(3),
-        )
+    n = 1000
+    hover = StateBatch(
+        t=0.01 * np.arange(n),
+        p_WB_W=np.zeros((n, 3)),
+        v_WB_W=np.zeros((n, 3)),
+        R_WB=np.broadcast_to(np.eye(3), (n, 3, 3)),
+        w_WB_B=np.zeros((n, 3)),
+        omega=np.full((n, airframe.n_rotors), 400.0),
+        a_WB_W=np.zeros((n, 3)),
+    )
+    _add_one_by_one(identifier, hover)
     identifier.flush()
     times = identifier.window.arrays()["t"]
     assert times[0] == pytest.approx(7.99) and times[-1] == pytest.approx(9.99)

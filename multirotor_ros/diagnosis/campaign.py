@@ -30,10 +30,11 @@ import numpy as np
 from multirotor_ros.diagnosis.detection import DetectionSettings
 from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser
 from multirotor_ros.diagnosis.residuals import ObserverSettings
-from multirotor_ros.io.flight_log import FlightLog, rotor_columns
+from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray, euler_to_matrix
+from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.state import StateBatch
 
 HOVER_HEIGHT_M = 3.0
 
@@ -157,9 +158,15 @@ class Measurements:
     w_WB_B: FloatArray
     omega: FloatArray
 
+    def at(self, k: int) -> StateBatch:
+        """What every vehicle measured at time step ``k``."""
+        return StateBatch(
+            self.t[k], self.p_WB_W[k], self.v_WB_W[k], self.R_WB[k], self.w_WB_B[k], self.omega[k]
+        )
+
 
 def measurements_from_logs(
-    logs: Sequence[FlightLog], n_rotors: int, velocity_noise_m_s: float, rng: np.random.Generator
+    logs: Sequence[FlightLog], velocity_noise_m_s: float, rng: np.random.Generator
 ) -> Measurements:
     """Stack logs of equal length (module docstring: which columns, and the velocity noise)."""
     lengths = {len(log) for log in logs}
@@ -167,19 +174,20 @@ def measurements_from_logs(
         raise ValueError(
             f"logs must have the same number of rows to be replayed together, got {sorted(lengths)}"
         )
+    vehicles = [StateBatch.from_flight_log(log) for log in logs]
 
-    def stacked(names: Sequence[str]) -> FloatArray:
-        return np.stack([np.column_stack([log.column(n) for n in names]) for log in logs], axis=1)
+    def stacked(field: str) -> FloatArray:
+        return np.stack([getattr(vehicle, field) for vehicle in vehicles], axis=1)
 
-    velocity = stacked(("vx", "vy", "vz"))
+    velocity = stacked("v_WB_W")
     velocity = velocity + velocity_noise_m_s * rng.standard_normal(velocity.shape)
     return Measurements(
         t=logs[0].t.copy(),
-        p_WB_W=stacked(("x", "y", "z")),
+        p_WB_W=stacked("p_WB_W"),
         v_WB_W=velocity,
-        R_WB=euler_to_matrix(stacked(("roll", "pitch", "yaw"))),
-        w_WB_B=stacked(("p", "q", "r")),
-        omega=stacked(rotor_columns("omega", n_rotors)),
+        R_WB=stacked("R_WB"),
+        w_WB_B=stacked("w_WB_B"),
+        omega=stacked("omega"),
     )
 
 
@@ -219,15 +227,7 @@ def replay(
     for k, t in enumerate(data.t):
         dt = 0.0 if previous_t is None else float(t - previous_t)
         previous_t = float(t)
-        output = diagnoser.update(
-            float(t),
-            dt if dt > 0 else 1e-3,
-            data.p_WB_W[k],
-            data.v_WB_W[k],
-            data.R_WB[k],
-            data.w_WB_B[k],
-            data.omega[k],
-        ).detection
+        output = diagnoser.update(data.at(k), dt if dt > 0 else 1e-3).detection
         if output is None or output.warming_up:
             continue
         before = t < onset_s
@@ -357,7 +357,7 @@ def run_campaign(
     started = time.perf_counter()
     logs = fly_all(airframe, cases, duration_s, processes)
     flown = time.perf_counter()
-    data = measurements_from_logs(logs, airframe.n_rotors, velocity_noise_m_s, rng)
+    data = measurements_from_logs(logs, velocity_noise_m_s, rng)
     onsets = np.array([c.onset_s for c in cases])
     trace = replay(Model(airframe), data, onsets, observer, detection)
     replayed = time.perf_counter()
@@ -418,7 +418,7 @@ def nominal_check(
     started = time.perf_counter()
     logs = fly_all(airframe, cases, duration_s, processes)
     flown = time.perf_counter()
-    data = measurements_from_logs(logs, airframe.n_rotors, velocity_noise_m_s, rng)
+    data = measurements_from_logs(logs, velocity_noise_m_s, rng)
     trace = replay(Model(airframe), data, np.full(flights, math.inf), observer, detection)
     replayed = time.perf_counter()
     first = trace.alarm_before[~np.isnan(trace.alarm_before)]

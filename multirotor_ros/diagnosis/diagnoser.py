@@ -27,6 +27,7 @@ from multirotor_ros.diagnosis.detection import (
 from multirotor_ros.diagnosis.residuals import ObserverSettings, ResidualSample, WrenchResidualGenerator
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.state import StateBatch
 
 Level = Literal["OK", "WARN", "ERROR"]
 
@@ -77,21 +78,12 @@ class RotorDiagnoser:
         self.residuals.reset()
         self._settle_until = t + self.settle_s
 
-    def update(
-        self,
-        t: float,
-        dt_s: float,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        R_WB: FloatArray,
-        w_WB_B: FloatArray,
-        omega: FloatArray,
-        a_W: FloatArray | None = None,
-    ) -> DiagnosisSample:
-        """One measurement for every vehicle (arrays batched over B); ``dt_s`` since the previous one."""
+    def update(self, state: StateBatch, dt_s: float) -> DiagnosisSample:
+        """One measurement of every vehicle, all taken at one time; ``dt_s`` since the previous one."""
+        t = float(state.t[0])
         if not self.residuals.started and self._settle_until is None:
             self._settle_until = t + self.settle_s
-        sample = self.residuals.update(t, dt_s, p_WB_W, v_WB_W, R_WB, w_WB_B, omega, a_W)
+        sample = self.residuals.update(state, dt_s)
         if sample.model_change_wrench is not None:
             self.detector.shift_baseline(sample.model_change_wrench)
         if self._settle_until is not None and t < self._settle_until - 1e-9:

@@ -24,6 +24,7 @@ Samples are processed at ``sample_rate_hz`` on average: faster state messages ar
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -32,11 +33,12 @@ import numpy as np
 
 from multirotor_ros.diagnosis.detection import DetectionSettings, DetectorOutput
 from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser, RotorReport, rotor_reports
-from multirotor_ros.diagnosis.record import FlightRecord, window_rows
+from multirotor_ros.diagnosis.record import FlightRecord, window_samples
 from multirotor_ros.diagnosis.residuals import ObserverSettings
 from multirotor_ros.ident.rls import Estimate, OnlineIdentifier, OnlineSettings, RefitResult, RlsError
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.rotation import FloatArray, euler_to_matrix, quat_to_euler, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray, quat_to_matrix
+from multirotor_ros.model.state import StateBatch
 
 NS = 1_000_000_000
 # Resting (on the ground, or held): less thrust than this share of the weight, slower than these.
@@ -82,16 +84,17 @@ class StepResult:
     skipped: str | None = None  # why the sample was not used
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Sample:
+    """A state message as one state; its rotor speeds are NaN until paired with those of its stamp."""
+
     stamp_ns: int
-    t: float
-    p: FloatArray
-    v: FloatArray
-    q: FloatArray
-    w: FloatArray
-    omega: FloatArray
-    a: FloatArray | None
+    state: StateBatch
+
+    @property
+    def t(self) -> float:
+        """[s] since the monitor's time origin."""
+        return float(self.state.t[0])
 
 
 class FlightMonitor:
@@ -133,19 +136,10 @@ class FlightMonitor:
         if resumed.state is not None:
             self._restore(resumed.state)
         if resumed.log is not None:
-            rows = window_rows(resumed.log, self.airframe.n_rotors, self.identifier.settings.window_s)
-            if rows is not None:
-                euler = np.column_stack([rows["roll"], rows["pitch"], rows["yaw"]])
-                self.identifier.load_window(
-                    rows["t"],
-                    np.column_stack([rows["x"], rows["y"], rows["z"]]),
-                    np.column_stack([rows["vx"], rows["vy"], rows["vz"]]),
-                    euler_to_matrix(euler),
-                    np.column_stack([rows["p"], rows["q"], rows["r"]]),
-                    np.column_stack([rows[f"omega_{k}"] for k in range(1, self.airframe.n_rotors + 1)]),
-                    np.column_stack([rows["ax"], rows["ay"], rows["az"]]),
-                )
-                self.notes.append(f"window refilled with {len(rows['t'])} recorded samples")
+            samples = window_samples(resumed.log, self.identifier.settings.window_s)
+            if samples is not None:
+                self.identifier.load_window(samples)
+                self.notes.append(f"window refilled with {samples.size} recorded samples")
                 self.diagnoser.set_model(self.identifier.model())
 
     def _restore(self, state: dict[str, FloatArray]) -> None:
@@ -232,18 +226,16 @@ class FlightMonitor:
         period_ns = round(NS / self.settings.sample_rate_hz)
         self._next_due_ns = max(self._next_due_ns + period_ns, stamp_ns + period_ns // 2)
         assert self._origin_ns is not None
-        self._waiting.append(
-            _Sample(
-                stamp_ns,
-                (stamp_ns - self._origin_ns) * 1e-9,
-                values[0],
-                values[1],
-                values[2] / np.linalg.norm(values[2]),
-                values[3],
-                np.zeros(0),
-                values[4] if a_W is not None else None,
-            )
+        state = StateBatch(
+            t=np.array([(stamp_ns - self._origin_ns) * 1e-9]),
+            p_WB_W=values[0][None],
+            v_WB_W=values[1][None],
+            R_WB=quat_to_matrix(values[2] / np.linalg.norm(values[2]))[None],
+            w_WB_B=values[3][None],
+            omega=np.full((1, self.airframe.n_rotors), np.nan),
+            a_WB_W=values[4][None] if a_W is not None else None,
         )
+        self._waiting.append(_Sample(stamp_ns, state))
         return self._drain()
 
     def _drain(self) -> list[StepResult]:
@@ -264,14 +256,14 @@ class FlightMonitor:
             self._warnings = []
         return results
 
-    def _process(self, sample: _Sample) -> StepResult:
-        result = StepResult(sample.t, sample.stamp_ns)
-        omega = self._speeds_for(sample.stamp_ns)
+    def _process(self, waiting: _Sample) -> StepResult:
+        result = StepResult(waiting.t, waiting.stamp_ns)
+        omega = self._speeds_for(waiting.stamp_ns)
         if omega is None:
             result.skipped = "no recent motor_speeds"
             return result
-        sample.omega = omega
-        if self._resting(sample):
+        sample = _Sample(waiting.stamp_ns, waiting.state.with_omega(omega[None]))
+        if self._resting(sample.state):
             if not self._was_resting:
                 result.events.append(
                     f"resting at t = {sample.stamp_ns * 1e-9:.2f} s (thrust below the weight, not moving): "
@@ -302,18 +294,18 @@ class FlightMonitor:
         self._last_processed = sample
         return result
 
-    def _resting(self, sample: _Sample) -> bool:
+    def _resting(self, state: StateBatch) -> bool:
         """On the ground (or held): the rotors carry less than the weight and nothing moves.
 
         The ground's reaction is in no model: samples taken then would teach the identifier a wrong
         thrust and show the detector a thrust loss that is the ground's doing.
         """
         model = self.diagnoser.model
-        thrust = model.airframe.k_f_N_s2 * float(sample.omega @ sample.omega)
+        thrust = model.airframe.k_f_N_s2 * float(np.sum(state.omega**2))
         weight = float(np.atleast_1d(model.mass_kg)[0]) * model.gravity_m_s2
         still = (
-            float(np.linalg.norm(sample.v)) < RESTING_SPEED_M_S
-            and float(np.linalg.norm(sample.w)) < RESTING_RATE_RAD_S
+            float(np.linalg.norm(state.v_WB_W)) < RESTING_SPEED_M_S
+            and float(np.linalg.norm(state.w_WB_B)) < RESTING_RATE_RAD_S
         )
         return thrust < RESTING_THRUST_SHARE * weight and still
 
@@ -339,38 +331,26 @@ class FlightMonitor:
         return []
 
     def _diagnose(self, sample: _Sample, dt: float, result: StepResult) -> None:
-        R = quat_to_matrix(sample.q)[None]
-        out = self.diagnoser.update(
-            sample.t,
-            dt if dt > 0 else 1.0 / self.settings.sample_rate_hz,
-            sample.p[None],
-            sample.v[None],
-            R,
-            sample.w[None],
-            sample.omega[None],
-            None if sample.a is None else sample.a[None],
-        )
+        out = self.diagnoser.update(sample.state, dt if dt > 0 else 1.0 / self.settings.sample_rate_hz)
         result.accel_residual_W = out.residuals.accel_W[0].copy()
         result.detection = out.detection
 
     def _identify(self, sample: _Sample, last: _Sample | None, result: StepResult) -> None:
         """Feed the identifier: this sample with the IMU acceleration, or the one before (speed change)."""
-        if sample.a is not None:
-            target, a_W = sample, sample.a
+        if sample.state.a_WB_W is not None:
+            target = sample
         else:
             previous = self._previous
             if last is None or previous is None:
                 return
-            target = last
-            a_W = (sample.v - previous.v) / ((sample.stamp_ns - previous.stamp_ns) * 1e-9)
+            dv_W = sample.state.v_WB_W - previous.state.v_WB_W
+            a_W = dv_W / ((sample.stamp_ns - previous.stamp_ns) * 1e-9)
+            target = _Sample(last.stamp_ns, dataclasses.replace(last.state, a_WB_W=a_W))
         if bool(self.diagnoser.any_suspicion[0]):
             return
-        R = quat_to_matrix(target.q)
-        self.identifier.add(target.t, target.p, target.v, R, target.w, target.omega, a_W)
+        self.identifier.add(target.state)
         if self.record is not None:
-            self.record.append(
-                target.stamp_ns, quat_to_euler(target.q), target.p, target.v, a_W, target.omega, target.w
-            )
+            self.record.append(target.stamp_ns, target.state)
         if self.identifier.refit_due(target.t):
             refit = self.identifier.refit()
             if refit is not None:

@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from multirotor_ros.io.flight_log import FlightLog, FlightLogError, read_flight_log, rotor_columns
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import FloatArray, matrix_to_quat, quat_to_euler
+from multirotor_ros.model.state import StateBatch
 
 _SEGMENT = re.compile(r"segment_(\d{4,})\.csv")
 STATE_FILE = "state.npz"
@@ -142,24 +143,23 @@ class FlightRecord:
 
     # ------------------------------------------------------------------ appending
 
-    def append(
-        self,
-        stamp_ns: int,
-        euler: FloatArray,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        a_W: FloatArray,
-        omega: FloatArray,
-        w_WB_B: FloatArray,
-    ) -> None:
-        """Buffer one sample; a stamp not after the last one starts a new segment (the clock went back)."""
+    def append(self, stamp_ns: int, sample: StateBatch) -> None:
+        """Buffer one sample (with the acceleration the identifier used) stamped ``stamp_ns``.
+
+        A stamp not after the last one starts a new segment (the clock went back).
+        """
+        if sample.size != 1 or sample.a_WB_W is None:
+            raise ValueError("a record row is one sample with its acceleration")
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             self.start_new_segment()
         if self.stamp_origin_ns is None:
             self.stamp_origin_ns = stamp_ns
         self.last_stamp_ns = stamp_ns
         t = (stamp_ns - self.stamp_origin_ns) * 1e-9
-        values = np.concatenate([euler, p_WB_W, v_WB_W, a_W, omega, w_WB_B])
+        euler = quat_to_euler(matrix_to_quat(sample.R_WB))
+        values = np.concatenate(
+            [euler, sample.p_WB_W, sample.v_WB_W, sample.a_WB_W, sample.omega, sample.w_WB_B], axis=1
+        )[0]
         self._rows.append(f"{t:.9f}," + ",".join(f"{v:.10g}" for v in values) + "\n")
 
     def start_new_segment(self) -> None:
@@ -210,13 +210,14 @@ class FlightRecord:
         os.replace(partial, final)
 
 
-def window_rows(log: FlightLog, n_rotors: int, window_s: float) -> dict[str, FloatArray] | None:
-    """The rows of a resumed segment within ``window_s`` of its end, as arrays for the identifier."""
+def window_samples(log: FlightLog, window_s: float) -> StateBatch | None:
+    """The complete samples of a resumed segment within ``window_s`` of its end, for the identifier."""
     if not len(log):
         return None
-    keep = log.t >= log.t[-1] - window_s
-    columns = {name: log.column(name)[keep] for name in _columns(n_rotors)}
-    finite = np.all(np.isfinite(np.column_stack(list(columns.values()))), axis=1)
-    if not finite.any():
-        return None
-    return {name: values[finite] for name, values in columns.items()}
+    samples = StateBatch.from_flight_log(log)
+    assert samples.a_WB_W is not None  # a record's segment has the accelerations the identifier used
+    recent = log.t >= log.t[-1] - window_s
+    values = [samples.p_WB_W, samples.v_WB_W, samples.R_WB.reshape(-1, 9), samples.w_WB_B, samples.omega]
+    complete = np.all(np.isfinite(np.column_stack([*values, samples.a_WB_W])), axis=1)
+    keep = recent & complete
+    return samples.select(keep) if keep.any() else None

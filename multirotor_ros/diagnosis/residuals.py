@@ -25,12 +25,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from multirotor_ros.diagnosis.observer import SuperTwistingObserver, levant_gains
 from multirotor_ros.model.effects import EffectContext
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotors import rotor_signatures
 from multirotor_ros.model.state import StateBatch
 
 
@@ -110,9 +110,6 @@ class WrenchResidualGenerator:
         if current is not None and self._previous_model is None:
             self._previous_model = current
         self.model = model
-        airframe = model.airframe
-        self._positions = airframe.rotor_positions_m
-        self._drag = airframe.spin_signs * airframe.k_t_N_m_s2
 
     def reset(self) -> None:
         """Forget the observer's state (after a gap in the data): the next :meth:`update` starts it again."""
@@ -125,43 +122,28 @@ class WrenchResidualGenerator:
         """Whether the observer has had a measurement since its start or last reset."""
         return self.rotational.started
 
-    def signatures(self, thrust: FloatArray, torque_factor: FloatArray, omega: FloatArray) -> FloatArray:
-        """(B, 4, N) per-rotor wrench contributions from per-rotor thrust (B, N) and drag-torque factor."""
-        return np.stack(
-            [
-                thrust,
-                thrust * self._positions[:, 1],
-                -thrust * self._positions[:, 0],
-                self._drag * omega**2 * torque_factor,
-            ],
-            axis=1,
-        )
+    def signatures(self, ctx: EffectContext) -> FloatArray:
+        """(B, 4, N) each rotor's own wrench contribution in the model at these states."""
+        thrust, torque_factor = self.model.rotor_thrusts(ctx)
+        drag_torque = self.model.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor
+        return rotor_signatures(self.model.airframe, thrust, drag_torque)
 
-    def update(
-        self,
-        t: ArrayLike,
-        dt_s: float,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        R_WB: FloatArray,
-        w_WB_B: FloatArray,
-        omega: FloatArray,
-        a_W: FloatArray | None = None,
-    ) -> ResidualSample:
-        """Residuals at a new measurement (all arrays batched over B); ``dt_s`` since the previous one.
+    def update(self, state: StateBatch, dt_s: float) -> ResidualSample:
+        """Residuals at a new measurement of B vehicles; ``dt_s`` since the previous one.
 
-        ``a_W``: measured acceleration (world, gravity excluded); without it the velocity is used.
+        The state's measured acceleration ``a_WB_W`` (world, gravity excluded) is used when given, the
+        velocity otherwise.
         """
-        ctx = self.model.context(StateBatch(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega))
+        ctx = self.model.context(state)
         a_model_W, w_dot_model_B = self.model.accelerations(ctx)
         model_change = None
         if self._previous_model is not None:
             model_change = self._carry_over(ctx, a_model_W, w_dot_model_B)
-        angular_accel_B = self.rotational.update(dt_s, w_WB_B, w_dot_model_B)
-        if a_W is None:
-            accel_W = self.translational.update(dt_s, v_WB_W, a_model_W)
+        angular_accel_B = self.rotational.update(dt_s, state.w_WB_B, w_dot_model_B)
+        if state.a_WB_W is None:
+            accel_W = self.translational.update(dt_s, state.v_WB_W, a_model_W)
         else:
-            raw = a_W - a_model_W
+            raw = state.a_WB_W - a_model_W
             if self._measured_accel_residual is None or self.settings.filter_time_constant_s == 0:
                 self._measured_accel_residual = raw
             else:
@@ -175,12 +157,11 @@ class WrenchResidualGenerator:
         wrench = np.concatenate(
             [thrust_residual[:, None], angular_accel_B @ self.model.inertia_kg_m2.T], axis=1
         )
-        thrust, torque_factor = self.model.rotor_thrusts(ctx)
         return ResidualSample(
             accel_W=accel_W,
             angular_accel_B=angular_accel_B,
             wrench=wrench,
-            signatures=self.signatures(thrust, torque_factor, omega),
+            signatures=self.signatures(ctx),
             model_change_wrench=model_change,
         )
 

@@ -43,6 +43,7 @@ from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.effects import EFFECTS, EffectContext
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotors import rotor_signatures
 
 Progress = Callable[[str], None]
 RADIUS = ("ground_effect", "rotor_radius_m")
@@ -387,11 +388,8 @@ class Fitter:
         airframe = healthy.airframe
         # Per-rotor columns of delta = 1 - effectiveness: the lost thrust and the lost rotor torque.
         force_cols = -thrust[:, :, None] * e_z[:, None, :]  # (T, N, 3)
-        positions = airframe.rotor_positions_m
-        drag = airframe.k_t_N_m_s2 * design.ctx.omega**2 * torque_factor * airframe.spin_signs[None, :]
-        torque_cols = -np.stack(
-            [thrust * positions[None, :, 1], -thrust * positions[None, :, 0], drag], axis=2
-        )
+        drag_torque = airframe.k_t_N_m_s2 * design.ctx.omega**2 * torque_factor
+        torque_cols = -rotor_signatures(airframe, thrust, drag_torque)[:, 1:, :].swapaxes(1, 2)  # (T, N, 3)
         if samples.chain.order > 0:
             force_cols = samples.through_chain(force_cols)
         sw = np.sqrt(self.weights)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
 
 import numpy as np
 
@@ -210,19 +209,11 @@ class ForceRegressor:
         """Y (B, 3) [N] and Phi (B, 3, P) with y = Phi theta for measured accelerations ``a_W`` (B, 3)."""
         return self.assemble(*self.parts(ctx, a_W))
 
-    def from_arrays(
-        self,
-        t: Any,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        R_WB: FloatArray,
-        w_WB_B: FloatArray,
-        omega: FloatArray,
-        a_W: FloatArray,
-    ) -> tuple[FloatArray, FloatArray]:
-        """:meth:`__call__` on plain arrays (all with leading axis B)."""
-        ctx = self.model.context(StateBatch(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega))
-        return self(ctx, a_W)
+    def from_states(self, states: StateBatch) -> tuple[FloatArray, FloatArray]:
+        """:meth:`__call__` on states with their measured accelerations ``a_WB_W``."""
+        if states.a_WB_W is None:
+            raise ValueError("the regressor needs the states' measured accelerations (a_WB_W)")
+        return self(self.model.context(states), states.a_WB_W)
 
     @property
     def mass_columns(self) -> FloatArray:

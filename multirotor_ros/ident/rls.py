@@ -42,6 +42,7 @@ from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.effects import EFFECTS
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.state import StateBatch
 
 
 class RlsError(ValueError):
@@ -311,16 +312,30 @@ def _at_bound(theta: FloatArray, bound: FloatArray) -> FloatArray:
     )
 
 
+# The fields of a sample that the window keeps: all of a StateBatch's, the measured acceleration included.
+_STATE_FIELDS = ("t", "p_WB_W", "v_WB_W", "R_WB", "w_WB_B", "omega", "a_WB_W")
+
+
 class _Window:
     """Rows of the last ``window_s``, in growable arrays (amortised O(1) append, O(1) trim).
 
-    Each row holds a sample (t, p, v, R, w, omega, a) and its regression rows y (3,), Φ (3, P), so a
-    refit stacks what the RLS already computed instead of building the regressors again.
+    Each row holds a sample (the fields of a :class:`StateBatch`) and its regression rows y (3,),
+    Φ (3, P), so a refit stacks what the RLS already computed instead of building the regressors again.
     """
 
-    def __init__(self, shapes: Mapping[str, tuple[int, ...]], window_s: float):
+    def __init__(self, n_rotors: int, n_parameters: int, window_s: float):
         self.window_s = window_s
-        self._shapes = dict(shapes)
+        self._shapes: dict[str, tuple[int, ...]] = {
+            "t": (),
+            "p_WB_W": (3,),
+            "v_WB_W": (3,),
+            "R_WB": (3, 3),
+            "w_WB_B": (3,),
+            "omega": (n_rotors,),
+            "a_WB_W": (3,),
+            "y": (3,),
+            "Phi": (3, n_parameters),
+        }
         self._data = {name: np.empty((256, *shape)) for name, shape in self._shapes.items()}
         self._start = 0
         self._end = 0
@@ -333,9 +348,10 @@ class _Window:
         """Time of the newest row, None when empty."""
         return float(self._data["t"][self._end - 1]) if len(self) else None
 
-    def extend(self, rows: Mapping[str, FloatArray]) -> None:
-        """Append k rows (every field with a leading axis k, times increasing) and trim to the window."""
-        k = len(rows["t"])
+    def extend(self, states: StateBatch, y: FloatArray, Phi: FloatArray) -> None:
+        """Append states (times increasing, accelerations given) with their rows; trim to the window."""
+        rows = {name: getattr(states, name) for name in _STATE_FIELDS} | {"y": y, "Phi": Phi}
+        k = states.size
         while self._end + k > self._data["t"].shape[0]:
             self._compact(self._end + k - self._start)
         for name in self._shapes:
@@ -359,6 +375,11 @@ class _Window:
     def arrays(self) -> dict[str, FloatArray]:
         """Views of the rows in the window, oldest first."""
         return {name: self._data[name][self._start : self._end] for name in self._shapes}
+
+    def states(self) -> StateBatch:
+        """The samples in the window, oldest first."""
+        data = self.arrays()
+        return StateBatch(**{name: data[name] for name in _STATE_FIELDS})
 
     def clear(self) -> None:
         """Drop every row."""
@@ -424,22 +445,9 @@ class OnlineIdentifier:
         # whether the last refit could: a parameter the window cannot see is held at its trusted value.
         self.trusted = theta0.copy()
         self.identifiable = np.ones(len(self.refs), dtype=bool)
-        n, p = airframe.n_rotors, len(self.refs)
-        shapes = {
-            "t": (),
-            "p": (3,),
-            "v": (3,),
-            "R": (3, 3),
-            "w": (3,),
-            "omega": (n,),
-            "a": (3,),
-            "y": (3,),
-            "Phi": (3, p),
-        }
-        self.window = _Window(shapes, self.settings.window_s)
-        self._pending: list[
-            tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
-        ] = []
+        self.window = _Window(airframe.n_rotors, len(self.refs), self.settings.window_s)
+        self._pending: list[StateBatch] = []
+        self._n_pending = 0
         self._last_t: float | None = None
         self.last_refit: RefitResult | None = None
         self._last_refit_t: float | None = None
@@ -450,90 +458,63 @@ class OnlineIdentifier:
     # 1 or 10 samples, so batching divides the identifier's CPU load; the RLS still updates per sample.
     REGRESSOR_BATCH = 10
 
-    def add(
-        self,
-        t: float,
-        p_WB_W: ArrayLike,
-        v_WB_W: ArrayLike,
-        R_WB: ArrayLike,
-        w_WB_B: ArrayLike,
-        omega: ArrayLike,
-        a_W: ArrayLike,
-    ) -> None:
-        """Queue one measured sample (one vehicle; a_W measured, gravity excluded); folded in by batches.
+    def add(self, samples: StateBatch) -> None:
+        """Queue measured samples of one vehicle (times increasing, ``a_WB_W`` measured, gravity excluded).
 
-        Raises ValueError for a sample not newer than the previous one or not finite: the caller refuses
-        those before (a node counts them), so reaching here is a programming error, not bad input.
+        They are folded in by batches of :attr:`REGRESSOR_BATCH`. Raises ValueError for samples not newer
+        than the previous one, without an acceleration or not finite: the caller refuses those before (a
+        node counts them), so reaching here is a programming error, not bad input.
         """
-        sample = (
-            float(t),
-            np.asarray(p_WB_W, dtype=float).reshape(3),
-            np.asarray(v_WB_W, dtype=float).reshape(3),
-            np.asarray(R_WB, dtype=float).reshape(3, 3),
-            np.asarray(w_WB_B, dtype=float).reshape(3),
-            np.asarray(omega, dtype=float).reshape(self.airframe.n_rotors),
-            np.asarray(a_W, dtype=float).reshape(3),
-        )
-        if self._last_t is not None and sample[0] <= self._last_t:
-            raise ValueError(
-                f"sample at t = {sample[0]:.6f} s is not newer than the last one ({self._last_t:.6f} s)"
-            )
-        if not all(np.all(np.isfinite(part)) for part in sample):
-            raise ValueError(f"sample at t = {sample[0]:.6f} s holds non-finite values")
-        self._last_t = sample[0]
-        self._pending.append(sample)
-        if len(self._pending) >= self.REGRESSOR_BATCH:
+        self._check(samples)
+        self._last_t = float(samples.t[-1])
+        self._pending.append(samples)
+        self._n_pending += samples.size
+        if self._n_pending >= self.REGRESSOR_BATCH:
             self.flush()
+
+    def _check(self, samples: StateBatch) -> None:
+        if samples.a_WB_W is None:
+            raise ValueError("samples for identification need their measured acceleration (a_WB_W)")
+        if samples.omega.shape[1] != self.airframe.n_rotors:
+            raise ValueError(
+                f"samples have {samples.omega.shape[1]} rotor speeds, the airframe {self.airframe.n_rotors}"
+            )
+        t = samples.t
+        if self._last_t is not None and t[0] <= self._last_t:
+            raise ValueError(
+                f"sample at t = {t[0]:.6f} s is not newer than the last one ({self._last_t:.6f} s)"
+            )
+        if np.any(np.diff(t) <= 0):
+            raise ValueError(f"sample times from t = {t[0]:.6f} s do not strictly increase")
+        values = [getattr(samples, name) for name in _STATE_FIELDS]
+        if not all(np.all(np.isfinite(value)) for value in values):
+            raise ValueError(f"samples from t = {t[0]:.6f} s hold non-finite values")
 
     def flush(self) -> None:
         """Fold the queued samples into the RLS (one update each) and the window."""
         if not self._pending:
             return
-        t, p, v, R, w, omega, a = (np.stack(column) for column in zip(*self._pending, strict=True))
+        samples = StateBatch.concatenate(self._pending)
         self._pending = []
-        y, Phi = self.regressor.from_arrays(t, p, v, R, w, omega, a)
-        for k in range(t.size):
+        self._n_pending = 0
+        y, Phi = self.regressor.from_states(samples)
+        for k in range(samples.size):
             self.rls.update(y[k], Phi[k])
-        self.window.extend(
-            {"t": t, "p": p, "v": v, "R": R, "w": w, "omega": omega, "a": a, "y": y, "Phi": Phi}
-        )
+        self.window.extend(samples, y, Phi)
 
-    def load_window(
-        self,
-        t: FloatArray,
-        p_WB_W: FloatArray,
-        v_WB_W: FloatArray,
-        R_WB: FloatArray,
-        w_WB_B: FloatArray,
-        omega: FloatArray,
-        a_W: FloatArray,
-    ) -> None:
-        """Fill the window with recorded samples (arrays with a leading axis, times increasing).
+    def load_window(self, samples: StateBatch) -> None:
+        """Fill the window with recorded samples (times increasing, accelerations given).
 
         For a resumed node: the RLS already holds these samples (its state was saved), so only the
         window learns them, for the next refit.
         """
         self.flush()
-        t = np.asarray(t, dtype=float)
-        if t.size == 0:
+        if samples.size == 0:
             return
-        if np.any(np.diff(t) <= 0) or (self.window.last_t is not None and t[0] <= self.window.last_t):
-            raise ValueError("recorded samples must have strictly increasing times, after the window's")
-        y, Phi = self.regressor.from_arrays(t, p_WB_W, v_WB_W, R_WB, w_WB_B, omega, a_W)
-        self.window.extend(
-            {
-                "t": t,
-                "p": p_WB_W,
-                "v": v_WB_W,
-                "R": R_WB,
-                "w": w_WB_B,
-                "omega": omega,
-                "a": a_W,
-                "y": y,
-                "Phi": Phi,
-            }
-        )
-        self._last_t = float(t[-1])
+        self._check(samples)
+        y, Phi = self.regressor.from_states(samples)
+        self.window.extend(samples, y, Phi)
+        self._last_t = float(samples.t[-1])
 
     @property
     def n_samples(self) -> int:
@@ -543,6 +524,7 @@ class OnlineIdentifier:
     def reset_window(self) -> None:
         """Forget the window (e.g. the clock went back): the RLS keeps what it learnt."""
         self._pending = []
+        self._n_pending = 0
         self.window.clear()
         self._last_t = None
 
@@ -564,9 +546,7 @@ class OnlineIdentifier:
         if self.regressor.bilinear:
             # Rows linearised around an older estimate: rebuild them around the current one.
             self.regressor.relinearise(np.clip(self.rls.theta, self.lower, self.upper))
-            y, Phi = self.regressor.from_arrays(
-                data["t"], data["p"], data["v"], data["R"], data["w"], data["omega"], data["a"]
-            )
+            y, Phi = self.regressor.from_states(self.window.states())
         else:
             y, Phi = data["y"], data["Phi"]
         A = Phi.reshape(-1, Phi.shape[2])

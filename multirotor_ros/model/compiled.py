@@ -1,87 +1,54 @@
-"""Compiled fast path of :meth:`Model.derivative` + RK4 for the effects of effects.md.
+"""Compiled fast path of :meth:`Model.derivative` + RK4, generated from the effects' own formulas.
 
-Why a second form of the same physics: a single vehicle at 1 kHz must run thousands of times faster
-than real time inside a node, and numpy's per-call overhead (about 1 us per operation, ~300 operations
-per RK4 step) makes that impossible for B = 1; a batch of 10,000 vehicles must reach 10^7 vehicle-steps
-per second on two cores. The numpy :class:`Model` stays the reference (readable, composable, used by
-identification on whole logs); ``test_effects.py`` checks that both give the same derivative for every
-effect, so a formula changed in one place and not the other fails the suite. Models with an effect this
-kernel does not know use the numpy path.
+Why compiled code: a single vehicle at 1 kHz must run thousands of times faster than real time inside a
+node, and numpy's per-call overhead (about 1 us per operation, ~300 operations per RK4 step) makes that
+impossible for B = 1; a batch of 10,000 vehicles must reach 10^7 vehicle-steps per second on two cores.
 
-Design: one lane kernel serves every batch size. Vehicles are cut into chunks of up to ``LANES``
-vehicles ("lanes"); a chunk's state, command and parameters are transposed into structure-of-arrays form
-(row after row of LANES values), and the chunk runs all its steps while its arrays stay in cache. Every
-formula is written once, as the body of a loop over lanes (rotors are an outer loop, lanes the inner
-one), which LLVM turns into AVX2 code stepping four vehicles per instruction. Lane bodies have no branch
-that depends on the lane (selects instead of ``if``; ``error_model="numpy"`` so that a division carries
-no zero check); what the whole chunk shares (motor lag, ground effect, whether the rotor sums change
-within a step) is decided once per chunk or step, outside the lane loops. Chunks run in parallel
-threads. A single vehicle is a chunk of one lane: the same code, whose lane loops run once. It runs
-about as fast as a scalar per-vehicle kernel did (up to 1,900x real time in CPU time on the 2-core
-reference machine, bench/bench_model.py; 1,000x is required), so there is no scalar twin of the physics
-to keep in step with this one.
+One source of truth: no formula of an effect is written here. For the effects of a model, this module
+writes the source of a kernel that calls each effect's formulas (:mod:`multirotor_ros.model.effects`,
+compiled by numba and inlined) where the numpy :class:`Model` calls them on arrays, and the rotor torques
+through the same :func:`~multirotor_ros.model.rotors.rotor_torque_terms`. The generated module is written
+to a cache directory under a name that hashes its own text and the source of every module it calls, so
+numba's on-disk cache is valid exactly as long as the physics is unchanged; a model with a new set of
+effects compiles once (a few seconds) and is loaded from the cache afterwards.
 
-Parameters are packed per vehicle into one row (see ``PARAMETER_LAYOUT``), neutral values meaning
-"effect absent" (drag 0, eta 1, no ground effect radius 0, no motor lag tau 0, no fault motor 0).
-Presence of motor lag and of ground effect is a property of the model, hence the same for every vehicle.
+Design: one lane kernel serves every batch size. Vehicles are cut into chunks of up to ``LANES`` vehicles
+("lanes"); a chunk's state, command and parameters are transposed into structure-of-arrays form (row after
+row of LANES values), and the chunk runs all its steps while its arrays stay in cache. Every formula is
+called in the body of a loop over lanes (rotors are an outer loop, lanes the inner one), which LLVM turns
+into AVX2 code stepping four vehicles per instruction. Lane bodies have no branch that depends on the
+lane (formulas are written with arithmetic selects; ``error_model="numpy"`` so that a division carries no
+zero check). Chunks run in parallel threads. A single vehicle is a chunk of one lane: the same code.
+Because a kernel is generated per set of effects, a model pays only for the effects it has.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from numba import njit, prange
+import hashlib
+import importlib.util
+import inspect
+import os
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+from types import ModuleType
 
+import numpy as np
+from numba import njit
+
+from multirotor_ros.model import effects as effects_module
+from multirotor_ros.model import rotors as rotors_module
 from multirotor_ros.model import state as S
+from multirotor_ros.model.effects import (
+    ROTOR_FORMULAS,
+    STATE_QUANTITIES,
+    VEHICLE_QUANTITIES,
+    Effect,
+    formula_arguments,
+)
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
-
-PARAMETER_LAYOUT: dict[str, int] = {
-    name: index
-    for index, name in enumerate(
-        (
-            "mass_kg",
-            "gravity_m_s2",
-            "k_f",
-            "k_t",
-            "c_x",
-            "c_y",
-            "c_z",
-            "k_h",
-            "k_f1",
-            "eta_lower",
-            "rotor_radius_m",
-            "k_v",
-            "tau_s",
-            "f_x",
-            "f_y",
-            "f_z",
-            "motor",
-            "effectiveness",
-            "t_fault_s",
-            "j_r",
-            "r_x",
-            "r_y",
-        )
-    )
-}
-NEUTRAL = {"eta_lower": 1.0, "effectiveness": 1.0}
-SUPPORTED_EFFECTS = frozenset(
-    {
-        "quadratic_drag",
-        "rotor_drag",
-        "thrust_speed_dependence",
-        "coaxial_loss",
-        "ground_effect",
-        "inflow_thrust_loss",
-        "motor_lag",
-        "mass_offset",
-        "constant_force",
-        "actuator_fault",
-        "gyroscopic",
-        "cg_offset",
-    }
-)
-GROUND_MIN_HEIGHT_IN_RADII = 0.5  # as GroundEffect.MIN_HEIGHT_IN_RADII
 
 # Vehicles per chunk: 64 lanes keep a chunk's working arrays (about 60 kB for an X8) in L1/L2 and give
 # the vector loops long runs; 10,000 vehicles make 157 chunks to share between the threads.
@@ -94,223 +61,29 @@ PARALLEL_MIN_BATCH = 2 * LANES
 # array at a constant distance from the others and needs one overlap check per pair of arrays (a
 # run-time row length makes it one per pair of rows, hundreds, and it gives up vectorising).
 L = LANES
-# State rows (multirotor_ros.model.state): position z, velocity, quaternion w x y z, body rate, rotors.
-_P_Z = 2 * L
+# State rows (multirotor_ros.model.state): position, velocity, quaternion w x y z, body rate, rotors.
+_P_X, _P_Y, _P_Z = 0, L, 2 * L
 _V_X, _V_Y, _V_Z = 3 * L, 4 * L, 5 * L
 _Q_W, _Q_X, _Q_Y, _Q_Z = 6 * L, 7 * L, 8 * L, 9 * L
 _W_X, _W_Y, _W_Z = 10 * L, 11 * L, 12 * L
 _OMEGA = S.ROTORS_START * L
-# Parameter rows (numba reads module-level ints as constants, not the dict).
-_MASS = PARAMETER_LAYOUT["mass_kg"] * L
-_GRAVITY = PARAMETER_LAYOUT["gravity_m_s2"] * L
-_K_F = PARAMETER_LAYOUT["k_f"] * L
-_K_T = PARAMETER_LAYOUT["k_t"] * L
-_C_X = PARAMETER_LAYOUT["c_x"] * L
-_C_Y = PARAMETER_LAYOUT["c_y"] * L
-_C_Z = PARAMETER_LAYOUT["c_z"] * L
-_K_H = PARAMETER_LAYOUT["k_h"] * L
-_K_F1 = PARAMETER_LAYOUT["k_f1"] * L
-_ETA_LOWER = PARAMETER_LAYOUT["eta_lower"] * L
-_RADIUS = PARAMETER_LAYOUT["rotor_radius_m"] * L
-_K_V = PARAMETER_LAYOUT["k_v"] * L
-_TAU = PARAMETER_LAYOUT["tau_s"] * L
-_F_X = PARAMETER_LAYOUT["f_x"] * L
-_F_Y = PARAMETER_LAYOUT["f_y"] * L
-_F_Z = PARAMETER_LAYOUT["f_z"] * L
-_MOTOR = PARAMETER_LAYOUT["motor"] * L
-_EFFECTIVENESS = PARAMETER_LAYOUT["effectiveness"] * L
-_T_FAULT = PARAMETER_LAYOUT["t_fault_s"] * L
-_J_R = PARAMETER_LAYOUT["j_r"] * L
-_R_X = PARAMETER_LAYOUT["r_x"] * L
-_R_Y = PARAMETER_LAYOUT["r_y"] * L
-# Columns of the (batch, P) parameter rows that decide what a whole batch integrates.
-_TAU_COLUMN = PARAMETER_LAYOUT["tau_s"]
-_RADIUS_COLUMN = PARAMETER_LAYOUT["rotor_radius_m"]
-# Work rows: the rotor sums (total thrust, the three body torques, sum of speeds, signed rotor momentum
-# per J_r), what the rotor loop needs of the attitude, and the current rotor's ground-effect factor.
-_TOTAL, _TAU_X, _TAU_Y, _TAU_Z, _OMEGA_SUM, _SPIN_MOMENTUM, _R20, _R21, _R22, _CLIMB, _GROUND_FACTOR = (
-    row * L for row in range(11)
-)
-_N_SUMS = 6
-_WORK_ROWS = 11
+# The parameter rows every model has; the effects' parameters follow (see :class:`ParameterLayout`).
+BASE_PARAMETERS = ("mass_kg", "gravity_m_s2", "k_f", "k_t", "rotor_time_constant_s")
+# Formulas of parameters only: the model evaluates them, and the kernel reads the result in a base row.
+_PACKED_IN_BASE_ROWS = {"mass_delta_kg", "rotor_time_constant_s"}
 
 _jit = njit(cache=True, error_model="numpy")
-# The lane functions are inlined where they are called: a numba call passes every array with a
+# Lane functions are inlined where they are called: a numba call passes every array with a
 # reference-count increment and decrement, which would cost more than a one-lane body.
 _lane = njit(cache=True, error_model="numpy", inline="always")
 
 
 def supports(model: Model) -> bool:
-    """Whether every effect of ``model`` is implemented here."""
-    return all(effect.id in SUPPORTED_EFFECTS for effect in model.effects)
+    """Whether the compiled path can run ``model``: any model of effects from the registry can."""
+    return all(type(effect) is effects_module.EFFECTS.get(effect.id) for effect in model.effects)
 
 
-def pack_parameters(model: Model, batch: int) -> FloatArray:
-    """(batch, P) parameter rows of ``model``; per-vehicle effect parameters broadcast over the batch."""
-    rows = np.zeros((batch, len(PARAMETER_LAYOUT)))
-    for name, value in NEUTRAL.items():
-        rows[:, PARAMETER_LAYOUT[name]] = value
-    rows[:, PARAMETER_LAYOUT["mass_kg"]] = np.broadcast_to(model.mass_kg, (batch,))
-    rows[:, PARAMETER_LAYOUT["gravity_m_s2"]] = model.gravity_m_s2
-    rows[:, PARAMETER_LAYOUT["k_f"]] = model.airframe.k_f_N_s2
-    rows[:, PARAMETER_LAYOUT["k_t"]] = model.airframe.k_t_N_m_s2
-    for effect in model.effects:
-        for name, value in effect.parameters.items():
-            if name in PARAMETER_LAYOUT and name != "mass_kg":
-                rows[:, PARAMETER_LAYOUT[name]] = np.broadcast_to(value, (batch,))
-    return rows
-
-
-@_lane
-def _rotor_sums(t, y, u, prm, positions, spin, lower, lag, ground, lanes, work):
-    """Per-rotor thrust and drag torque summed over the rotors, into the sum rows of ``work``."""
-    for lane in range(lanes):
-        qw, qx, qy, qz = y[_Q_W + lane], y[_Q_X + lane], y[_Q_Y + lane], y[_Q_Z + lane]
-        r02 = 2 * (qx * qz + qw * qy)
-        r12 = 2 * (qy * qz - qw * qx)
-        r22 = 1 - 2 * (qx * qx + qy * qy)
-        work[_R20 + lane] = 2 * (qx * qz - qw * qy)
-        work[_R21 + lane] = 2 * (qy * qz + qw * qx)
-        work[_R22 + lane] = r22
-        work[_CLIMB + lane] = y[_V_X + lane] * r02 + y[_V_Y + lane] * r12 + y[_V_Z + lane] * r22
-        for row in range(_N_SUMS):
-            work[row * L + lane] = 0.0
-    for i in range(positions.shape[0]):
-        # Without motor lag the rotors turn at the held command.
-        omega = _OMEGA + i * L
-        source = y if lag else u
-        speed_row = omega if lag else i * L
-        p_x, p_y, p_z = positions[i, 0], positions[i, 1], positions[i, 2]
-        sign = spin[i]
-        is_lower = lower[i]
-        number = i + 1.0
-        if ground:
-            # A loop of its own, so that models without ground effect pay none of its divisions.
-            for lane in range(lanes):
-                radius = prm[_RADIUS + lane]
-                height = (
-                    y[_P_Z + lane]
-                    + work[_R20 + lane] * p_x
-                    + work[_R21 + lane] * p_y
-                    + work[_R22 + lane] * p_z
-                )
-                height = max(height, GROUND_MIN_HEIGHT_IN_RADII * radius)
-                ratio = radius / (4.0 * height)
-                work[_GROUND_FACTOR + lane] = 1.0 / (1.0 - ratio * ratio)
-        for lane in range(lanes):
-            w = source[speed_row + lane]
-            thrust = (
-                prm[_K_F + lane] * w * w
-                + prm[_K_F1 + lane] * w * w * w
-                - prm[_K_V + lane] * w * work[_CLIMB + lane]
-            )
-            eta = prm[_ETA_LOWER + lane]
-            factor = (eta if is_lower else 1.0) * work[_GROUND_FACTOR + lane]
-            faulty = (prm[_MOTOR + lane] == number) & (t >= prm[_T_FAULT + lane])
-            effectiveness = prm[_EFFECTIVENESS + lane]
-            torque_factor = effectiveness if faulty else 1.0
-            thrust *= factor * torque_factor
-            work[_TOTAL + lane] += thrust
-            work[_TAU_X + lane] += thrust * p_y
-            work[_TAU_Y + lane] -= thrust * p_x
-            work[_TAU_Z + lane] += sign * prm[_K_T + lane] * w * w * torque_factor
-            work[_OMEGA_SUM + lane] += w
-            work[_SPIN_MOMENTUM + lane] -= sign * w
-
-
-@_lane
-def _rigid_body(y, prm, inertia, inertia_inv, lanes, work, k):
-    """Rows 0..12 of dx/dt given the rotor sums: forces in world, torques in body, quaternion kinematics."""
-    i00, i01, i02 = inertia[0, 0], inertia[0, 1], inertia[0, 2]
-    i10, i11, i12 = inertia[1, 0], inertia[1, 1], inertia[1, 2]
-    i20, i21, i22 = inertia[2, 0], inertia[2, 1], inertia[2, 2]
-    j00, j01, j02 = inertia_inv[0, 0], inertia_inv[0, 1], inertia_inv[0, 2]
-    j10, j11, j12 = inertia_inv[1, 0], inertia_inv[1, 1], inertia_inv[1, 2]
-    j20, j21, j22 = inertia_inv[2, 0], inertia_inv[2, 1], inertia_inv[2, 2]
-    for lane in range(lanes):
-        qw, qx, qy, qz = y[_Q_W + lane], y[_Q_X + lane], y[_Q_Y + lane], y[_Q_Z + lane]
-        r00 = 1 - 2 * (qy * qy + qz * qz)
-        r01 = 2 * (qx * qy - qw * qz)
-        r02 = 2 * (qx * qz + qw * qy)
-        r10 = 2 * (qx * qy + qw * qz)
-        r11 = 1 - 2 * (qx * qx + qz * qz)
-        r12 = 2 * (qy * qz - qw * qx)
-        r20 = 2 * (qx * qz - qw * qy)
-        r21 = 2 * (qy * qz + qw * qx)
-        r22 = 1 - 2 * (qx * qx + qy * qy)
-        vx, vy, vz = y[_V_X + lane], y[_V_Y + lane], y[_V_Z + lane]
-        wx, wy, wz = y[_W_X + lane], y[_W_Y + lane], y[_W_Z + lane]
-        total = work[_TOTAL + lane]
-        # Forces in world: thrust along body z, drags, constant force.
-        fx = total * r02 - prm[_C_X + lane] * vx * abs(vx) + prm[_F_X + lane]
-        fy = total * r12 - prm[_C_Y + lane] * vy * abs(vy) + prm[_F_Y + lane]
-        fz = total * r22 - prm[_C_Z + lane] * vz * abs(vz) + prm[_F_Z + lane]
-        # -k_h omega_sum R P R^T v: body-horizontal part of the velocity (adds exactly 0 when k_h = 0).
-        bx = r00 * vx + r10 * vy + r20 * vz
-        by = r01 * vx + r11 * vy + r21 * vz
-        gain = -prm[_K_H + lane] * work[_OMEGA_SUM + lane]
-        fx += gain * (r00 * bx + r01 * by)
-        fy += gain * (r10 * bx + r11 * by)
-        fz += gain * (r20 * bx + r21 * by)
-        # Torques in body: propeller gyroscope and a moved centre of gravity.
-        h = prm[_J_R + lane] * work[_SPIN_MOMENTUM + lane]
-        tau_x = work[_TAU_X + lane] - wy * h - prm[_R_Y + lane] * total
-        tau_y = work[_TAU_Y + lane] + wx * h + prm[_R_X + lane] * total
-        tau_z = work[_TAU_Z + lane]
-        k[0 * L + lane] = vx
-        k[1 * L + lane] = vy
-        k[_P_Z + lane] = vz
-        inverse_mass = 1.0 / prm[_MASS + lane]
-        k[_V_X + lane] = fx * inverse_mass
-        k[_V_Y + lane] = fy * inverse_mass
-        k[_V_Z + lane] = fz * inverse_mass - prm[_GRAVITY + lane]
-        k[_Q_W + lane] = 0.5 * (-qx * wx - qy * wy - qz * wz)
-        k[_Q_X + lane] = 0.5 * (qw * wx + qy * wz - qz * wy)
-        k[_Q_Y + lane] = 0.5 * (qw * wy - qx * wz + qz * wx)
-        k[_Q_Z + lane] = 0.5 * (qw * wz + qx * wy - qy * wx)
-        lx = i00 * wx + i01 * wy + i02 * wz
-        ly = i10 * wx + i11 * wy + i12 * wz
-        lz = i20 * wx + i21 * wy + i22 * wz
-        mx = tau_x - (wy * lz - wz * ly)
-        my = tau_y - (wz * lx - wx * lz)
-        mz = tau_z - (wx * ly - wy * lx)
-        k[_W_X + lane] = j00 * mx + j01 * my + j02 * mz
-        k[_W_Y + lane] = j10 * mx + j11 * my + j12 * mz
-        k[_W_Z + lane] = j20 * mx + j21 * my + j22 * mz
-
-
-@_lane
-def _derivative(
-    t, y, u, prm, inertia, inertia_inv, positions, spin, lower, lag, ground, sums_current, lanes, work, k
-):
-    """dx/dt of the first ``lanes`` lanes into ``k``; its rotor rows stay zero without motor lag.
-
-    ``sums_current``: the rotor sums in ``work`` are still valid (see ``_sums_steady``): not recomputed.
-    """
-    if not sums_current:
-        _rotor_sums(t, y, u, prm, positions, spin, lower, lag, ground, lanes, work)
-    _rigid_body(y, prm, inertia, inertia_inv, lanes, work, k)
-    if lag:
-        for i in range(positions.shape[0]):
-            omega = _OMEGA + i * L
-            for lane in range(lanes):
-                k[omega + lane] = (u[i * L + lane] - y[omega + lane]) / prm[_TAU + lane]
-
-
-@_lane
-def _sums_steady(t, dt, prm, lag, ground, lanes):
-    """Whether the rotor sums of every lane are the same at the four RK4 stages of [t, t + dt].
-
-    They are when they depend on the held command only: no motor lag, no inflow, no ground effect
-    and no fault starting inside the step. Then they are computed once per step.
-    """
-    if lag or ground:
-        return False
-    for lane in range(lanes):
-        fault_starts = prm[_MOTOR + lane] > 0 and t < prm[_T_FAULT + lane] <= t + dt
-        if prm[_K_V + lane] != 0.0 or fault_starts:
-            return False
-    return True
+# ============================================================================ static lane functions
 
 
 @_jit
@@ -336,6 +109,34 @@ def _lane_is_finite(xs, size, lane):
         if not np.isfinite(xs[j * L + lane]):
             return False
     return True
+
+
+@_lane
+def _rigid_body_rows(
+    y, inertia, inertia_inv, lane, k, fx, fy, fz, tau_x, tau_y, tau_z, inverse_mass, gravity
+):
+    """Rows 0..12 of dx/dt of one lane from its force (world) and torque (body)."""
+    qw, qx, qy, qz = y[_Q_W + lane], y[_Q_X + lane], y[_Q_Y + lane], y[_Q_Z + lane]
+    wx, wy, wz = y[_W_X + lane], y[_W_Y + lane], y[_W_Z + lane]
+    k[_P_X + lane] = y[_V_X + lane]
+    k[_P_Y + lane] = y[_V_Y + lane]
+    k[_P_Z + lane] = y[_V_Z + lane]
+    k[_V_X + lane] = fx * inverse_mass
+    k[_V_Y + lane] = fy * inverse_mass
+    k[_V_Z + lane] = fz * inverse_mass - gravity
+    k[_Q_W + lane] = 0.5 * (-qx * wx - qy * wy - qz * wz)
+    k[_Q_X + lane] = 0.5 * (qw * wx + qy * wz - qz * wy)
+    k[_Q_Y + lane] = 0.5 * (qw * wy - qx * wz + qz * wx)
+    k[_Q_Z + lane] = 0.5 * (qw * wz + qx * wy - qy * wx)
+    lx = inertia[0, 0] * wx + inertia[0, 1] * wy + inertia[0, 2] * wz
+    ly = inertia[1, 0] * wx + inertia[1, 1] * wy + inertia[1, 2] * wz
+    lz = inertia[2, 0] * wx + inertia[2, 1] * wy + inertia[2, 2] * wz
+    mx = tau_x - (wy * lz - wz * ly)
+    my = tau_y - (wz * lx - wx * lz)
+    mz = tau_z - (wx * ly - wy * lx)
+    k[_W_X + lane] = inertia_inv[0, 0] * mx + inertia_inv[0, 1] * my + inertia_inv[0, 2] * mz
+    k[_W_Y + lane] = inertia_inv[1, 0] * mx + inertia_inv[1, 1] * my + inertia_inv[1, 2] * mz
+    k[_W_Z + lane] = inertia_inv[2, 0] * mx + inertia_inv[2, 1] * my + inertia_inv[2, 2] * mz
 
 
 @_lane
@@ -388,58 +189,333 @@ def _rk4_step_end(dt, lanes, rows, use_ground, ground_height, xs, ks, acc):
     return broken
 
 
+# ============================================================================ the parameter rows
+
+
+class ParameterLayout:
+    """Where each parameter of a model sits in a vehicle's packed parameter row.
+
+    The base rows come first, then each effect's scalar parameters, then the per-rotor parameters
+    (``n_rotors`` rows each), so that every row but the per-rotor ones has an index known at compile time.
+    """
+
+    def __init__(self, effects: tuple[type[Effect], ...]):
+        self.effects = effects
+        self.rows: dict[tuple[str, str], int] = {("", name): i for i, name in enumerate(BASE_PARAMETERS)}
+        for cls in effects:
+            for parameter in cls.PARAMETERS:
+                self.rows[(cls.id, parameter.name)] = len(self.rows)
+        self.per_rotor_first = len(self.rows)
+        self.per_rotor_effects = tuple(cls for cls in effects if cls.PER_ROTOR_PARAMETER is not None)
+
+    def size(self, n_rotors: int) -> int:
+        """Row length for an airframe with ``n_rotors`` rotors."""
+        return self.per_rotor_first + n_rotors * len(self.per_rotor_effects)
+
+    def pack(self, model: Model, batch: int) -> FloatArray:
+        """(batch, P) parameter rows of ``model``; per-vehicle parameters broadcast over the batch."""
+        n = model.n_rotors
+        rows = np.zeros((batch, self.size(n)))
+        base = {
+            "mass_kg": model.mass_kg,
+            "gravity_m_s2": model.gravity_m_s2,
+            "k_f": model.airframe.k_f_N_s2,
+            "k_t": model.airframe.k_t_N_m_s2,
+            "rotor_time_constant_s": 0.0
+            if model.rotor_time_constant_s is None
+            else model.rotor_time_constant_s,
+        }
+        for name, value in base.items():
+            rows[:, self.rows[("", name)]] = np.broadcast_to(value, (batch,))
+        for effect in model.effects:
+            if type(effect) not in self.effects:
+                continue  # acts through the base rows only (mass, rotor time constant)
+            for parameter in type(effect).PARAMETERS:
+                column = self.rows[(effect.id, parameter.name)]
+                rows[:, column] = np.broadcast_to(effect[parameter.name], (batch,))
+            if effect.PER_ROTOR_PARAMETER is not None:
+                first = self.per_rotor_first + n * self.per_rotor_effects.index(type(effect))
+                values = effect.per_rotor_values()
+                assert values is not None
+                rows[:, first : first + n] = np.broadcast_to(values, (batch, n))
+        return rows
+
+
+# ============================================================================ kernel generation
+
+
+class _KernelWriter:
+    """Writes the source of the kernel for one set of effects (see the module docstring)."""
+
+    def __init__(self, effects: tuple[type[Effect], ...], lag: bool):
+        self.effects = effects
+        self.layout = ParameterLayout(effects)
+        self.lag = lag
+        hooks = [(cls, hook) for cls in effects for hook in cls.formulas()]
+        self.rotor_hooks = [(cls, hook) for cls, hook in hooks if hook in ROTOR_FORMULAS]
+        self.vehicle_hooks = [(cls, hook) for cls, hook in hooks if hook in ("force_W", "torque_B")]
+        rotor_reads = {
+            name for cls, hook in self.rotor_hooks for name in formula_arguments(getattr(cls, hook))
+        }
+        vehicle_reads = {
+            name for cls, hook in self.vehicle_hooks for name in formula_arguments(getattr(cls, hook))
+        }
+        # Vehicle quantities the rotor formulas read, computed once per lane before the rotor loop.
+        self.rotor_vehicle_quantities = sorted(
+            name for name in rotor_reads if name in VEHICLE_QUANTITIES and name != "t"
+        )
+        if "rotor_height" in rotor_reads:
+            self.rotor_vehicle_quantities = sorted(
+                {*self.rotor_vehicle_quantities, "p_z", "r20", "r21", "r22"}
+            )
+        self.sums = ["total", "tau_x", "tau_y", "tau_z"]
+        for name in ("omega_sum", "spin_momentum", "spin_momentum_rate"):
+            if name in vehicle_reads or name in rotor_reads:
+                self.sums.append(name)
+        self.work_rows = self.sums + [f"q_{name}" for name in self.rotor_vehicle_quantities]
+        # The rotor sums are the same at every RK4 stage of a step when they read nothing that moves
+        # within it: then they are computed once per step.
+        self.steady = not lag and not (rotor_reads & (STATE_QUANTITIES | {"rotor_height"}))
+
+    @staticmethod
+    def function_name(cls: type[Effect], hook: str) -> str:
+        return f"_{cls.id}__{hook}"
+
+    def parameter_row(self, cls: type[Effect], name: str) -> str:
+        if cls.PER_ROTOR_PARAMETER is not None and name == cls.PER_ROTOR_PARAMETER.name:
+            block = self.layout.per_rotor_effects.index(cls)
+            return f"prm[({self.layout.per_rotor_first} + {block} * n_rotors + i) * L + lane]"
+        return f"prm[{self.layout.rows[(cls.id, name)]} * L + lane]"
+
+    def call(self, cls: type[Effect], hook: str, quantity: dict[str, str]) -> str:
+        """The call of an effect's formula with its arguments bound by name."""
+        parameters = {p.name for p in cls.PARAMETERS}
+        if cls.PER_ROTOR_PARAMETER is not None:
+            parameters.add(cls.PER_ROTOR_PARAMETER.name)
+        arguments = [
+            self.parameter_row(cls, name) if name in parameters else quantity[name]
+            for name in formula_arguments(getattr(cls, hook))
+        ]
+        return f"{self.function_name(cls, hook)}({', '.join(arguments)})"
+
+    def row(self, name: str) -> str:
+        return f"{self.work_rows.index(name)} * L + lane"
+
+    def rotor_sums(self) -> str:
+        q = {
+            "t": "t",
+            "omega": "omega",
+            "rotor_number": "rotor_number",
+            "is_lower": "is_lower",
+            "rotor_x": "rotor_x",
+            "rotor_y": "rotor_y",
+            "rotor_z": "rotor_z",
+            "spin": "spin_i",
+        }
+        if "q_p_z" in self.work_rows:
+            q["rotor_height"] = (
+                f"(work[{self.row('q_p_z')}] + work[{self.row('q_r20')}] * rotor_x"
+                f" + work[{self.row('q_r21')}] * rotor_y + work[{self.row('q_r22')}] * rotor_z)"
+            )
+        for name in self.rotor_vehicle_quantities:
+            q[name] = f"work[{self.row('q_' + name)}]"
+        lines = ["for lane in range(lanes):"]
+        if self.rotor_vehicle_quantities:
+            lines += ["    " + line for line in _attitude_lines()]
+            for name in self.rotor_vehicle_quantities:
+                lines.append(f"    work[{self.row('q_' + name)}] = {_vehicle_expression(name)}")
+        lines += [f"    work[{self.row(name)}] = 0.0" for name in self.sums]
+        lines += [
+            "n_rotors = positions.shape[0]",
+            "for i in range(n_rotors):",
+            "    rotor_x, rotor_y, rotor_z = positions[i, 0], positions[i, 1], positions[i, 2]",
+            "    spin_i = spin[i]",
+            "    is_lower = 1.0 if lower[i] else 0.0",
+            "    rotor_number = i + 1.0",
+            "    for lane in range(lanes):",
+            f"        omega = {'y[_OMEGA + i * L + lane]' if self.lag else 'u[i * L + lane]'}",
+            "        thrust = prm[2 * L + lane] * omega * omega",
+            "        factor = 1.0",
+            "        torque_factor = 1.0",
+        ]
+        for cls, hook in self.rotor_hooks:
+            call = self.call(cls, hook, q)
+            if hook == "rotor_thrust_term":
+                lines.append(f"        thrust += {call}")
+            else:
+                lines.append(f"        f = {call}")
+                lines.append("        factor *= f")
+                if cls.scales_rotor_torque:
+                    lines.append("        torque_factor *= f")
+        lines += [
+            "        thrust *= factor",
+            "        drag = prm[3 * L + lane] * omega * omega * torque_factor",
+            "        tx, ty, tz = rotor_torque_terms(thrust, drag, rotor_x, rotor_y, spin_i)",
+            f"        work[{self.row('total')}] += thrust",
+            f"        work[{self.row('tau_x')}] += tx",
+            f"        work[{self.row('tau_y')}] += ty",
+            f"        work[{self.row('tau_z')}] += tz",
+        ]
+        if "omega_sum" in self.sums:
+            lines.append(f"        work[{self.row('omega_sum')}] += omega")
+        if "spin_momentum" in self.sums:
+            lines.append(f"        work[{self.row('spin_momentum')}] -= spin_i * omega")
+        if "spin_momentum_rate" in self.sums and self.lag:
+            lines.append(
+                f"        work[{self.row('spin_momentum_rate')}] -= "
+                "spin_i * (u[i * L + lane] - omega) / prm[4 * L + lane]"
+            )
+        body = textwrap.indent("\n".join(lines), "    ")
+        return (
+            "@_lane\n"
+            "def _rotor_sums(t, y, u, prm, positions, spin, lower, lanes, work):\n"
+            '    """Per-rotor thrust and drag torque summed over the rotors, into the rows of ``work``."""\n'
+            f"{body}\n"
+        )
+
+    def rigid_body(self) -> str:
+        sums = ("omega_sum", "spin_momentum", "spin_momentum_rate")
+        q = {
+            name: _vehicle_expression(name)
+            for name in VEHICLE_QUANTITIES
+            if name not in (*sums, "total_thrust")
+        }
+        q["total_thrust"] = "total"
+        for name in sums:
+            q[name] = f"work[{self.row(name)}]" if name in self.sums else "0.0"
+        lines = ["for lane in range(lanes):"]
+        lines += ["    " + line for line in _attitude_lines()]
+        lines += [
+            f"    total = work[{self.row('total')}]",
+            "    fx = total * r02",
+            "    fy = total * r12",
+            "    fz = total * r22",
+            f"    tau_x = work[{self.row('tau_x')}]",
+            f"    tau_y = work[{self.row('tau_y')}]",
+            f"    tau_z = work[{self.row('tau_z')}]",
+        ]
+        for cls, hook in self.vehicle_hooks:
+            a, b, c = ("fx", "fy", "fz") if hook == "force_W" else ("tau_x", "tau_y", "tau_z")
+            lines.append(f"    da, db, dc = {self.call(cls, hook, q)}")
+            lines.append(f"    {a} += da")
+            lines.append(f"    {b} += db")
+            lines.append(f"    {c} += dc")
+        lines.append(
+            "    _rigid_body_rows(y, inertia, inertia_inv, lane, k, fx, fy, fz, tau_x, tau_y, tau_z,"
+            " 1.0 / prm[0 * L + lane], prm[1 * L + lane])"
+        )
+        body = textwrap.indent("\n".join(lines), "    ")
+        return (
+            "@_lane\n"
+            "def _rigid_body(t, y, prm, inertia, inertia_inv, lanes, work, k):\n"
+            '    """Rows 0..12 of dx/dt given the rotor sums: forces in world, torques in body."""\n'
+            f"{body}\n"
+        )
+
+    def source(self) -> str:
+        formulas = "\n".join(
+            f"{self.function_name(cls, hook)} = _lane(EFFECTS[{cls.id!r}].{hook})"
+            for cls, hook in self.rotor_hooks + self.vehicle_hooks
+        )
+        header = (
+            f'"""Generated by multirotor_ros.model.compiled for the effects: '
+            f"{', '.join(cls.id for cls in self.effects) or 'none'}{' (motor lag)' if self.lag else ''}.\n\n"
+            'Do not edit: it is written again whenever the physics changes."""\n\n'
+            "import numpy as np\n"
+            "from numba import njit, prange\n\n"
+            "from multirotor_ros.model.compiled import (\n"
+            "    L, S, _OMEGA, _P_Z, _Q_W, _Q_X, _Q_Y, _Q_Z, _V_X, _V_Y, _V_Z, _W_X, _W_Y, _W_Z,\n"
+            "    _jit, _lane, _lane_is_finite, _load_chunk, _rigid_body_rows,\n"
+            "    _rk4_stage_update, _rk4_step_end,\n"
+            ")\n"
+            "from multirotor_ros.model.effects import EFFECTS\n"
+            "from multirotor_ros.model.rotors import rotor_torque_terms as _rotor_torque_terms_py\n\n"
+            "rotor_torque_terms = _lane(_rotor_torque_terms_py)\n"
+            f"{formulas}\n\n"
+            f"LAG = {self.lag}\n"
+            f"STEADY = {self.steady}\n"
+            f"WORK_ROWS = {len(self.work_rows)}\n\n\n"
+        )
+        return header + self.rotor_sums() + "\n\n" + self.rigid_body() + "\n\n" + _CHUNK_LOOP
+
+
+def _attitude_lines() -> list[str]:
+    return [
+        "qw, qx, qy, qz = y[_Q_W + lane], y[_Q_X + lane], y[_Q_Y + lane], y[_Q_Z + lane]",
+        "r00 = 1 - 2 * (qy * qy + qz * qz)",
+        "r01 = 2 * (qx * qy - qw * qz)",
+        "r02 = 2 * (qx * qz + qw * qy)",
+        "r10 = 2 * (qx * qy + qw * qz)",
+        "r11 = 1 - 2 * (qx * qx + qz * qz)",
+        "r12 = 2 * (qy * qz - qw * qx)",
+        "r20 = 2 * (qx * qz - qw * qy)",
+        "r21 = 2 * (qy * qz + qw * qx)",
+        "r22 = 1 - 2 * (qx * qx + qy * qy)",
+    ]
+
+
+def _vehicle_expression(name: str) -> str:
+    """A vehicle quantity inside a lane loop, after :func:`_attitude_lines`."""
+    state_rows = {
+        "p_x": "y[0 * L + lane]",
+        "p_y": "y[1 * L + lane]",
+        "p_z": "y[_P_Z + lane]",
+        "v_x": "y[_V_X + lane]",
+        "v_y": "y[_V_Y + lane]",
+        "v_z": "y[_V_Z + lane]",
+        "w_x": "y[_W_X + lane]",
+        "w_y": "y[_W_Y + lane]",
+        "w_z": "y[_W_Z + lane]",
+        "t": "t",
+        "climb": "(y[_V_X + lane] * r02 + y[_V_Y + lane] * r12 + y[_V_Z + lane] * r22)",
+    }
+    if name in state_rows:
+        return state_rows[name]
+    if len(name) == 3 and name[0] == "r" and name[1:].isdigit():
+        return name
+    raise KeyError(f"{name} is a rotor sum, not a state quantity")
+
+
+# The chunk loop: the same for every set of effects; it calls the generated _rotor_sums and _rigid_body.
+_CHUNK_LOOP = '''
+@_lane
+def _derivative(t, y, u, prm, inertia, inertia_inv, positions, spin, lower, sums_current, lanes, work, k):
+    """dx/dt of the first ``lanes`` lanes into ``k``; its rotor rows stay zero without motor lag.
+
+    ``sums_current``: the rotor sums in ``work`` are still valid (STEADY): not recomputed.
+    """
+    if not sums_current:
+        _rotor_sums(t, y, u, prm, positions, spin, lower, lanes, work)
+    _rigid_body(t, y, prm, inertia, inertia_inv, lanes, work, k)
+    if LAG:
+        for i in range(positions.shape[0]):
+            omega = _OMEGA + i * L
+            for lane in range(lanes):
+                k[omega + lane] = (u[i * L + lane] - y[omega + lane]) / prm[4 * L + lane]
+
+
 @_jit
 def _rk4_chunk(
-    t0,
-    xs,
-    us,
-    ps,
-    inertia,
-    inertia_inv,
-    positions,
-    spin,
-    lower,
-    dt,
-    steps,
-    use_ground,
-    ground_height,
-    lanes,
-    valid,
-    failed,
+    t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height,
+    lanes, valid, failed,
 ):
     """RK4 ``steps`` times for the lanes of one chunk; ``failed[lane]`` = first step that went non-finite."""
     size = S.ROTORS_START + positions.shape[0]
-    lag = ps[_TAU] > 0
-    ground = ps[_RADIUS] > 0
-    rows = size if lag else S.ROTORS_START
+    rows = size if LAG else S.ROTORS_START
     ys = np.empty(size * L)
     ks = np.zeros(size * L)
     acc = np.empty(size * L)
-    work = np.ones(_WORK_ROWS * L)
+    work = np.ones(WORK_ROWS * L)
     half_dt = dt / 2
     alive = valid
     for step in range(steps):
         t = t0 + step * dt
-        steady = _sums_steady(t, dt, ps, lag, ground, lanes)
         # One call site per lane function: each is inlined once.
         for stage in range(4):
             offset = 0.0 if stage == 0 else (half_dt if stage < 3 else dt)
             _derivative(
-                t + offset,
-                xs if stage == 0 else ys,
-                us,
-                ps,
-                inertia,
-                inertia_inv,
-                positions,
-                spin,
-                lower,
-                lag,
-                ground,
-                stage > 0 and steady,
-                lanes,
-                work,
-                ks,
+                t + offset, xs if stage == 0 else ys, us, ps, inertia, inertia_inv, positions, spin, lower,
+                STEADY and stage > 0, lanes, work, ks,
             )
             if stage < 3:
                 _rk4_stage_update(stage == 0, half_dt if stage < 2 else dt, lanes, rows, xs, ks, acc, ys)
@@ -455,10 +531,7 @@ def _rk4_chunk(
 def _advance(
     t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height
 ):
-    """RK4 ``steps`` times for every vehicle, in place.
-
-    Returns per vehicle the index of the first step that went non-finite (-1 if none).
-    """
+    """RK4 ``steps`` times for every vehicle, in place; per vehicle the first step that went non-finite."""
     batch, size = x.shape
     lanes = min(L, batch)
     chunks = (batch + lanes - 1) // lanes
@@ -469,24 +542,10 @@ def _advance(
         xs = np.empty(size * L)
         us = np.empty(u.shape[1] * L)
         ps = np.empty(prm.shape[1] * L)
-        _load_chunk(x, u, prm, first, lanes, prm[0, _TAU_COLUMN] <= 0, xs, us, ps)
+        _load_chunk(x, u, prm, first, lanes, not LAG, xs, us, ps)
         _rk4_chunk(
-            t0,
-            xs,
-            us,
-            ps,
-            inertia,
-            inertia_inv,
-            positions,
-            spin,
-            lower,
-            dt,
-            steps,
-            use_ground,
-            ground_height,
-            lanes,
-            valid,
-            failed[first : first + valid],
+            t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground,
+            ground_height, lanes, valid, failed[first : first + valid],
         )
         for lane in range(valid):
             for j in range(size):
@@ -494,39 +553,86 @@ def _advance(
     return failed
 
 
-_advance_serial = _jit(_advance)
-_advance_parallel = njit(cache=True, error_model="numpy", parallel=True)(_advance)
+advance_serial = _jit(_advance)
+advance_parallel = njit(cache=True, error_model="numpy", parallel=True)(_advance)
 
 
 @_jit
-def _derivative_batch(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out):
+def derivative_batch(t, x, u, prm, inertia, inertia_inv, positions, spin, lower, out):
     """dx/dt of every vehicle, chunk after chunk."""
     batch, size = x.shape
     xs = np.empty(size * L)
     us = np.empty(u.shape[1] * L)
     ps = np.empty(prm.shape[1] * L)
     ks = np.zeros(size * L)
-    work = np.ones(_WORK_ROWS * L)
-    lag = prm[0, _TAU_COLUMN] > 0
-    ground = prm[0, _RADIUS_COLUMN] > 0
+    work = np.ones(WORK_ROWS * L)
     for first in range(0, batch, L):
         lanes = min(L, batch - first)
         _load_chunk(x, u, prm, first, lanes, False, xs, us, ps)
-        _derivative(
-            t, xs, us, ps, inertia, inertia_inv, positions, spin, lower, lag, ground, False, lanes, work, ks
-        )
+        _derivative(t, xs, us, ps, inertia, inertia_inv, positions, spin, lower, False, lanes, work, ks)
         for lane in range(lanes):
             for j in range(size):
                 out[first + lane, j] = ks[j * L + lane]
+'''
+
+
+def kernel_directory() -> Path:
+    """Where generated kernels and their numba cache live: $MULTIROTOR_ROS_KERNEL_DIR or the user cache."""
+    configured = os.environ.get("MULTIROTOR_ROS_KERNEL_DIR")
+    if configured:
+        return Path(configured)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "multirotor_ros" / "kernels"
+
+
+def _physics_fingerprint() -> str:
+    """The source of everything a generated kernel calls: a change to any formula makes a new kernel."""
+    digest = hashlib.sha256()
+    for module in (effects_module, rotors_module, S, sys.modules[__name__]):
+        digest.update(inspect.getsource(module).encode())
+    return digest.hexdigest()
+
+
+_KERNELS: dict[tuple[tuple[str, ...], bool], ModuleType] = {}
+
+
+def kernel_for(model: Model) -> tuple[ModuleType, ParameterLayout]:
+    """The compiled kernel module for the effects of ``model`` (generated, written and imported once)."""
+    classes = tuple(
+        type(effect) for effect in model.effects if type(effect).formulas().keys() - _PACKED_IN_BASE_ROWS
+    )
+    lag = model.rotor_time_constant_s is not None
+    key = (tuple(cls.id for cls in classes), lag)
+    writer = _KernelWriter(classes, lag)
+    if key not in _KERNELS:
+        source = writer.source()
+        digest = hashlib.sha256((source + _physics_fingerprint()).encode()).hexdigest()[:20]
+        name = f"multirotor_ros_kernel_{digest}"
+        directory = kernel_directory()
+        path = directory / f"{name}.py"
+        if not path.exists():
+            directory.mkdir(parents=True, exist_ok=True)
+            # Written whole and renamed, so that a process starting beside this one never reads half a file.
+            with tempfile.NamedTemporaryFile("w", dir=directory, suffix=".tmp", delete=False) as handle:
+                handle.write(source)
+            os.replace(handle.name, path)
+        spec = importlib.util.spec_from_file_location(name, path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        _KERNELS[key] = module
+    return _KERNELS[key], writer.layout
 
 
 class CompiledStepper:
-    """RK4 steps of a supported :class:`Model` for a fixed batch size, in compiled code."""
+    """RK4 steps of a :class:`Model` for a fixed batch size, in compiled code."""
 
     def __init__(self, model: Model, batch: int):
         self.model = model
         self.batch = batch
-        self.parameters = pack_parameters(model, batch)
+        self._kernel, layout = kernel_for(model)
+        self.parameters = layout.pack(model, batch)
         airframe = model.airframe
         self._geometry = (
             np.ascontiguousarray(model.inertia_kg_m2, dtype=float),
@@ -539,7 +645,7 @@ class CompiledStepper:
     def derivative(self, t: float, x: FloatArray, u: FloatArray) -> FloatArray:
         """dx/dt for each vehicle, from the compiled formulas (used to test them against the numpy model)."""
         out = np.empty_like(x, dtype=float)
-        _derivative_batch(
+        self._kernel.derivative_batch(
             float(t),
             np.ascontiguousarray(x, dtype=float),
             np.ascontiguousarray(u, dtype=float),
@@ -554,7 +660,9 @@ class CompiledStepper:
     ) -> FloatArray:
         """State after ``steps`` RK4 steps of ``dt`` with u held; FloatingPointError if one blows up."""
         x_next = np.array(x, dtype=float, order="C")
-        kernel = _advance_parallel if self.batch >= PARALLEL_MIN_BATCH else _advance_serial
+        kernel = (
+            self._kernel.advance_parallel if self.batch >= PARALLEL_MIN_BATCH else self._kernel.advance_serial
+        )
         failed = kernel(
             float(t),
             x_next,
@@ -574,14 +682,14 @@ class CompiledStepper:
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) every kernel once: serial, parallel and the derivative."""
-    from multirotor_ros.model import state as S
+    """Compile (or load from numba's cache) the kernels of the shipped airframes' own models."""
     from multirotor_ros.model.airframe import load_airframe
 
-    model = Model(load_airframe("x8_octorotor"))
-    for batch in (1, PARALLEL_MIN_BATCH):
-        stepper = CompiledStepper(model, batch)
-        x = S.make_state(model.n_rotors, batch=batch, position_m=(0.0, 0.0, 1.0))
-        u = np.full((batch, model.n_rotors), model.hover_speed_rad_s())
-        stepper.advance(0.0, x, u, 1e-3, 1, 0.0)
-        stepper.derivative(0.0, x, u)
+    for name in ("x8_octorotor", "hexarotor_f550", "quad_x"):
+        model = Model(load_airframe(name))
+        for batch in (1, PARALLEL_MIN_BATCH):
+            stepper = CompiledStepper(model, batch)
+            x = S.make_state(model.n_rotors, batch=batch, position_m=(0.0, 0.0, 1.0))
+            u = np.full((batch, model.n_rotors), model.hover_speed_rad_s())
+            stepper.advance(0.0, x, u, 1e-3, 1, 0.0)
+            stepper.derivative(0.0, x, u)

@@ -18,8 +18,16 @@ from scipy.optimize import brentq
 
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
-from multirotor_ros.model.effects import Effect, EffectContext, make_effect
+from multirotor_ros.model.effects import (
+    FORMULAS,
+    Effect,
+    EffectContext,
+    evaluate,
+    formula_arguments,
+    make_effect,
+)
 from multirotor_ros.model.rotation import FloatArray, quat_multiply
+from multirotor_ros.model.rotors import rotor_wrench
 
 
 class Model:
@@ -42,27 +50,26 @@ class Model:
                 f"effect(s) listed twice: {', '.join(duplicated)}; merge their parameters into one entry"
             )
         for effect in self.effects:
-            if effect.id == "actuator_fault" and np.any(effect["motor"] > airframe.n_rotors):
-                raise ValueError(
-                    f"actuator_fault: motor {effect['motor']} but {airframe.name} "
-                    f"has {airframe.n_rotors} rotors"
-                )
+            effect.check_airframe(airframe)
         self.gravity_m_s2 = gravity_m_s2
         self.mass_kg: FloatArray = np.asarray(
-            airframe.mass_kg
-            + sum((np.asarray(e.mass_delta_kg, dtype=float) for e in self.effects), np.zeros(()))
+            airframe.mass_kg + sum(self._parameter_formulas("mass_delta_kg"), np.zeros(()))
         )
-        if np.any(self.mass_kg <= 0):
-            raise ValueError(f"mass_offset makes the mass non-positive: {self.mass_kg}")
         self.inertia_kg_m2 = airframe.inertia_kg_m2
         self._inertia_inv = np.linalg.inv(self.inertia_kg_m2)
-        lags = [e.rotor_time_constant_s for e in self.effects if e.rotor_time_constant_s is not None]
-        self.rotor_time_constant_s: FloatArray | None = np.asarray(lags[0]) if lags else None
-        self._thrust_term_effects = [
-            e for e in self.effects if type(e).thrust_terms is not Effect.thrust_terms
+        lags = self._parameter_formulas("rotor_time_constant_s")
+        if len(lags) > 1:
+            raise ValueError("two effects set the rotors' time constant; keep one")
+        self.rotor_time_constant_s: FloatArray | None = lags[0] if lags else None
+        self._acting = {hook: [e for e in self.effects if hook in e.formulas()] for hook in FORMULAS}
+
+    def _parameter_formulas(self, hook: str) -> list[FloatArray]:
+        """The values of a formula that reads parameters only, one per effect that has it."""
+        return [
+            np.asarray(formula(**{name: effect[name] for name in formula_arguments(formula)}), dtype=float)
+            for effect in self.effects
+            if (formula := effect.formulas().get(hook)) is not None
         ]
-        self._factor_effects = [e for e in self.effects if type(e).thrust_factor is not Effect.thrust_factor]
-        self._wrench_effects = [e for e in self.effects if type(e).wrench is not Effect.wrench]
 
     # ------------------------------------------------------------------ structure
 
@@ -94,8 +101,8 @@ class Model:
 
     # ------------------------------------------------------------------ forces
 
-    def context(self, state: S.StateBatch) -> EffectContext:
-        """A batch of states with what the effects need of the airframe."""
+    def context(self, state: S.StateBatch, omega_dot: FloatArray | None = None) -> EffectContext:
+        """A batch of states with what the effects need of the airframe (``omega_dot``: rotor accelerations)."""
         return EffectContext(
             t=state.t,
             p_WB_W=state.p_WB_W,
@@ -107,14 +114,15 @@ class Model:
             lower_rotor_mask=self.airframe.lower_rotor_mask,
             spin_signs=self.airframe.spin_signs,
             k_f_N_s2=self.airframe.k_f_N_s2,
+            omega_dot=omega_dot,
         )
 
     def thrust_factors(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
         """(thrust factor, drag-torque factor), each (B, N): the product of every multiplicative effect."""
         thrust_factor = np.ones_like(ctx.omega)
         torque_factor = np.ones_like(ctx.omega)
-        for effect in self._factor_effects:
-            factor = effect.thrust_factor(ctx)
+        for effect in self._acting["rotor_thrust_factor"]:
+            factor = evaluate(effect, "rotor_thrust_factor", ctx)
             thrust_factor = thrust_factor * factor
             if effect.scales_rotor_torque:
                 torque_factor = torque_factor * factor
@@ -123,29 +131,26 @@ class Model:
     def rotor_thrusts(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
         """Per-rotor thrust [N] (B, N) and the drag-torque factor (B, N)."""
         thrust = self.airframe.k_f_N_s2 * ctx.omega**2
-        for effect in self._thrust_term_effects:
-            thrust = thrust + effect.thrust_terms(ctx)
+        for effect in self._acting["rotor_thrust_term"]:
+            thrust = thrust + evaluate(effect, "rotor_thrust_term", ctx)
         thrust_factor, torque_factor = self.thrust_factors(ctx)
         return thrust * thrust_factor, torque_factor
 
     def wrench(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Force in world (gravity excluded) [N], torque in body [N m], per-rotor thrust [N]."""
         thrust, torque_factor = self.rotor_thrusts(ctx)
-        positions = self.airframe.rotor_positions_m
-        total = thrust.sum(axis=1)
+        drag_torque = self.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor
+        rotors = rotor_wrench(self.airframe, thrust, drag_torque)
+        total = rotors[:, 0]
         F_W = total[:, None] * ctx.e_z_W
-        tau_B = np.stack(
-            [
-                thrust @ positions[:, 1],
-                -(thrust @ positions[:, 0]),
-                (self.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor) @ self.airframe.spin_signs,
-            ],
-            axis=1,
-        )
-        for effect in self._wrench_effects:
-            force, torque = effect.wrench(ctx, thrust)
-            F_W = F_W + force
-            tau_B = tau_B + torque
+        tau_B = rotors[:, 1:]
+        batch = (total.shape[0],)
+        for effect in self._acting["force_W"]:
+            components = evaluate(effect, "force_W", ctx, total_thrust=total)
+            F_W = F_W + np.stack([np.broadcast_to(c, batch) for c in components], axis=1)
+        for effect in self._acting["torque_B"]:
+            components = evaluate(effect, "torque_B", ctx, total_thrust=total)
+            tau_B = tau_B + np.stack([np.broadcast_to(c, batch) for c in components], axis=1)
         return F_W, tau_B, thrust
 
     def accelerations(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
@@ -185,8 +190,9 @@ class Model:
         """dx/dt of the flat state (B, 13 + N) for rotor-speed inputs u (B, N) or (N,)."""
         u = np.broadcast_to(np.asarray(u, dtype=float), (x.shape[0], self.n_rotors))
         omega = self.effective_rotor_speeds(x, u)
+        omega_dot = self.rotor_accelerations(omega, u)
         q = x[:, S.QUATERNION]
-        ctx = self.context(S.StateBatch.from_flat(t, x, omega))
+        ctx = self.context(S.StateBatch.from_flat(t, x, omega), omega_dot)
         a_W, w_dot_B = self.accelerations(ctx)
         dx = np.empty_like(x)
         dx[:, S.POSITION] = x[:, S.VELOCITY]
@@ -195,11 +201,14 @@ class Model:
         w_quat[:, 1:] = x[:, S.BODY_RATE]
         dx[:, S.QUATERNION] = 0.5 * quat_multiply(q, w_quat)
         dx[:, S.BODY_RATE] = w_dot_B
-        if self.rotor_time_constant_s is None:
-            dx[:, S.ROTORS_START :] = 0.0
-        else:
-            dx[:, S.ROTORS_START :] = (u - omega) / self.rotor_time_constant_s[..., None]
+        dx[:, S.ROTORS_START :] = 0.0 if omega_dot is None else omega_dot
         return dx
+
+    def rotor_accelerations(self, omega: FloatArray, u: FloatArray) -> FloatArray | None:
+        """d(omega)/dt (B, N) with motor lag; None without: the rotors turn at the held command."""
+        if self.rotor_time_constant_s is None:
+            return None
+        return (u - omega) / self.rotor_time_constant_s[..., None]
 
     def post_step(self, x: FloatArray, command: FloatArray) -> None:
         """After an integration step: unit quaternions, algebraic rotor speeds when there is no motor lag."""

@@ -12,12 +12,17 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from multirotor_ros.model.rotation import FloatArray, euler_to_quat, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray, euler_to_matrix, euler_to_quat, quat_to_matrix
+
+if TYPE_CHECKING:
+    from multirotor_ros.io.flight_log import FlightLog
 
 POSITION = slice(0, 3)
 VELOCITY = slice(3, 6)
@@ -79,6 +84,41 @@ class StateBatch:
             R_WB=quat_to_matrix(x[:, QUATERNION]),
             w_WB_B=x[:, BODY_RATE],
             omega=omega,
+        )
+
+    @classmethod
+    def from_flight_log(cls, log: FlightLog) -> StateBatch:
+        """The rows of a flight log with position, velocity, body rates ``p, q, r`` and rotor speeds.
+
+        Its ``ax, ay, az``, when present, become the measured acceleration (shared/spec/flight_log.md).
+        """
+
+        def columns(names: Sequence[str]) -> FloatArray:
+            return np.column_stack([log.column(name) for name in names])
+
+        acceleration = log.group_columns("acceleration")
+        return cls(
+            t=log.t,
+            p_WB_W=columns(log.group_columns("position")),
+            v_WB_W=columns(log.group_columns("velocity")),
+            R_WB=euler_to_matrix(log.euler()),
+            w_WB_B=columns(("p", "q", "r")),
+            omega=columns(log.group_columns("rotor_speeds")),
+            a_WB_W=columns(acceleration) if all(name in log.columns for name in acceleration) else None,
+        )
+
+    @classmethod
+    def concatenate(cls, batches: Sequence[StateBatch]) -> StateBatch:
+        """The states of ``batches`` one after the other; the acceleration is kept if every batch has it."""
+        accelerations = [batch.a_WB_W for batch in batches if batch.a_WB_W is not None]
+        return cls(
+            t=np.concatenate([batch.t for batch in batches]),
+            p_WB_W=np.concatenate([batch.p_WB_W for batch in batches]),
+            v_WB_W=np.concatenate([batch.v_WB_W for batch in batches]),
+            R_WB=np.concatenate([batch.R_WB for batch in batches]),
+            w_WB_B=np.concatenate([batch.w_WB_B for batch in batches]),
+            omega=np.concatenate([batch.omega for batch in batches]),
+            a_WB_W=np.concatenate(accelerations) if len(accelerations) == len(batches) else None,
         )
 
     @property
