@@ -138,8 +138,11 @@ class Parameter:
     neutral value is outside the valid range (a radius or a time constant of 0).
     ``scale``: the size that matters, from the airframe's :class:`ReferenceCondition`: a parameter whose
     standard deviation exceeds half of max(|value - neutral|, scale) is not identifiable from the log.
-    ``linear``: enters the force linearly (fitted by least squares); otherwise searched over ``search_grid``.
-    ``linear_given_others``: not linear in general, but linear once the effect's other parameters are fixed.
+    ``linear``: enters the force linearly for fixed values of the model's other parameters (a thrust factor
+    times k_f is bilinear: the identifier relinearises); fitted by least squares. Otherwise searched over
+    ``search_grid``. ``linear_given_others``: not linear in general, but linear once the effect's other
+    parameters are fixed (a fault's effectiveness, once its rotor and onset are chosen).
+    ``fit_bounds``: bounds that depend on the airframe, for the fit (the valid range is ``lower``..``upper``).
     """
 
     name: str
@@ -153,10 +156,13 @@ class Parameter:
     linear: bool = True
     linear_given_others: bool = False
     discrete: bool = False
-    # A rotor number: its upper bound is the airframe's rotor count.
-    rotor_number: bool = False
+    fit_bounds: Callable[[ReferenceCondition], tuple[float, float]] | None = None
     search_grid: tuple[float, ...] = ()
     search_start: float | None = None
+
+    def bounds(self, reference: ReferenceCondition) -> tuple[float, float]:
+        """(lower, upper) for a fit on the airframe of ``reference``."""
+        return (self.lower, self.upper) if self.fit_bounds is None else self.fit_bounds(reference)
 
     @property
     def start(self) -> float:
@@ -453,7 +459,6 @@ class CoaxialLoss(Effect):
             "upper and lower rotor speeds that differ (yaw)",
             lower=0.05,
             upper=1.5,
-            linear_given_others=True,
         ),
     )
     regime = "changes of the lower rotors' share of the thrust (on an X8, yaw with diagonal tilt)"
@@ -578,6 +583,8 @@ class MassOffset(Effect):
             0.0,
             lambda r: r.force_share * r.mass_kg,
             "thrust (any flight)",
+            # A payload can be negative (a lighter battery), but the vehicle keeps most of its mass.
+            fit_bounds=lambda r: (-0.9 * r.mass_kg, math.inf),
         ),
     )
     regime = "accelerations (a mass scales the whole force need)"
@@ -642,7 +649,7 @@ class ActuatorFault(Effect):
             lower=1.0,
             linear=False,
             discrete=True,
-            rotor_number=True,
+            fit_bounds=lambda r: (1.0, float(r.n_rotors)),
             search_start=1.0,
         ),
         Parameter(
