@@ -83,8 +83,14 @@ def rotorpy(seconds: float, trajectory: bool, step_s: float = DT) -> tuple[float
     except ImportError:
         return None
     hover = np.sqrt(quad_params["mass"] * 9.81 / (4 * quad_params["k_eta"]))
-    start = {"x": np.array([0, 0, 10.0]), "v": np.zeros(3), "q": np.array([0, 0, 0, 1.0]), "w": np.zeros(3),
-             "wind": np.zeros(3), "rotor_speeds": np.full(4, hover)}
+    start = {
+        "x": np.array([0, 0, 10.0]),
+        "v": np.zeros(3),
+        "q": np.array([0, 0, 0, 1.0]),
+        "w": np.zeros(3),
+        "wind": np.zeros(3),
+        "rotor_speeds": np.full(4, hover),
+    }
     vehicle = Multirotor(quad_params, initial_state=start)
     steps = int(seconds / step_s)
 
@@ -122,24 +128,38 @@ def main() -> None:
     parser.add_argument("--batch-steps", type=int, default=200, help="1 ms steps of the batch row")
     args = parser.parse_args()
     slow_seconds = min(args.seconds, 2.0)
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs "
-          "(wall figures drop when other programs run; CPU figures much less)")
+    print(
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs "
+        "(wall figures drop when other programs run; CPU figures much less)"
+    )
     rows: list[tuple[str, tuple[float, float] | None]] = []
     for trajectory in (False, True):
         label = "trajectory" if trajectory else "hover"
         rows.append((f"RotorPy Multirotor.step, {label}", rotorpy(slow_seconds, trajectory)))
         # Its examples step at 100 Hz, where its adaptive RK45 needs far fewer evaluations per second.
-        rows.append((f"RotorPy at its examples' 10 ms step, {label}",
-                     rotorpy(slow_seconds * 5, trajectory, 0.01)))
+        rows.append(
+            (f"RotorPy at its examples' 10 ms step, {label}", rotorpy(slow_seconds * 5, trajectory, 0.01))
+        )
         chunks = "10 ms" if trajectory else "1 s"
-        rows.append((f"ours compiled, advance {chunks} chunks, {label}",
-                     ours(args.seconds, "compiled", False, trajectory)))
-        rows.append((f"ours compiled, step per 1 ms call, {label}",
-                     ours(args.seconds / 4, "compiled", True, trajectory)))
-        rows.append((f"ours numpy reference, step per call, {label}",
-                     ours(slow_seconds, "numpy", True, trajectory)))
-    print(f"{'one vehicle, simulated s per s at 1 kHz':50s} {'x real time':>12s} {'(CPU time)':>11s} "
-          f"{'vs RotorPy':>11s}")
+        rows.append(
+            (
+                f"ours compiled, advance {chunks} chunks, {label}",
+                ours(args.seconds, "compiled", False, trajectory),
+            )
+        )
+        rows.append(
+            (
+                f"ours compiled, step per 1 ms call, {label}",
+                ours(args.seconds / 4, "compiled", True, trajectory),
+            )
+        )
+        rows.append(
+            (f"ours numpy reference, step per call, {label}", ours(slow_seconds, "numpy", True, trajectory))
+        )
+    print(
+        f"{'one vehicle, simulated s per s at 1 kHz':50s} {'x real time':>12s} {'(CPU time)':>11s} "
+        f"{'vs RotorPy':>11s}"
+    )
     reference: tuple[float, float] | None = None
     for name, value in rows:
         if name.startswith("RotorPy Multirotor.step"):
@@ -150,9 +170,11 @@ def main() -> None:
         versus = f"{value[1] / reference[1]:10.1f}x" if reference else f"{'-':>11s}"
         print(f"{name:50s} {value[0]:12.1f} {value[1]:11.1f} {versus}")
     wall, cpu, threads = batch(args.batch, args.batch_steps)
-    print(f"batch of {args.batch} X8, compiled, {threads} threads: {wall:.3g} vehicle-steps/s wall, "
-          f"{cpu:.3g} per {threads} busy threads' CPU time "
-          f"({cpu / args.batch * DT:.2f} simulated s per s each)")
+    print(
+        f"batch of {args.batch} X8, compiled, {threads} threads: {wall:.3g} vehicle-steps/s wall, "
+        f"{cpu:.3g} per {threads} busy threads' CPU time "
+        f"({cpu / args.batch * DT:.2f} simulated s per s each)"
+    )
 
 
 if __name__ == "__main__":

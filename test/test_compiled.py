@@ -33,8 +33,12 @@ def _effects(b: slice | int) -> list[dict]:
         {"id": "motor_lag", "tau_s": np.linspace(0.02, 0.05, BATCH)[b]},
         {"id": "mass_offset", "dm_kg": 0.3},
         {"id": "constant_force", "f_x": 1.0, "f_y": -0.5, "f_z": 0.2},
-        {"id": "actuator_fault", "motor": (1 + vehicles % 8)[b].astype(float),
-         "effectiveness": 0.4, "t_fault_s": (0.05 + 0.001 * (vehicles % 50))[b]},
+        {
+            "id": "actuator_fault",
+            "motor": (1 + vehicles % 8)[b].astype(float),
+            "effectiveness": 0.4,
+            "t_fault_s": (0.05 + 0.001 * (vehicles % 50))[b],
+        },
         {"id": "gyroscopic", "j_r": 1e-4},
         {"id": "cg_offset", "r_x": 0.01, "r_y": -0.02},
     ]
@@ -70,8 +74,12 @@ def test_the_derivative_of_several_chunks_matches_the_reference() -> None:
     x0, u = _start()
     model = Model(X8, _effects(slice(None)))
     for t in (0.0, 0.2):
-        np.testing.assert_allclose(compiled.CompiledStepper(model, BATCH).derivative(t, x0, u),
-                                   model.derivative(t, x0, u), rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(
+            compiled.CompiledStepper(model, BATCH).derivative(t, x0, u),
+            model.derivative(t, x0, u),
+            rtol=1e-11,
+            atol=1e-11,
+        )
 
 
 @pytest.mark.parametrize("vehicle", [compiled.LANES + 7, BATCH - 1])

@@ -15,9 +15,15 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from multirotor_ros.control.allocation import Allocator
-from multirotor_ros.control.gains import GAIN_UNITS, GainError, airframe_gains, gains_from_section
+from multirotor_ros.control.gains import (
+    GAIN_UNITS,
+    SEED1_GAINS,
+    GainError,
+    airframe_gains,
+    gains_from_section,
+)
 from multirotor_ros.control.law import SaturationController, saturate, wrap_angle
-from multirotor_ros.model.airframe import AirframeError, airframe_from_dict, load_airframe
+from multirotor_ros.model.airframe import GRAVITY_M_S2, AirframeError, airframe_from_dict, load_airframe
 from multirotor_ros.model.rotation import euler_to_quat
 from multirotor_ros.resources import available_airframes
 from multirotor_ros.simulation.flight import simulate_flight
@@ -169,12 +175,41 @@ def test_every_airframe_has_every_gain(name: str) -> None:
     assert all(value > 0 for value in gains.values())
 
 
-def test_a_missing_gain_is_named_with_its_file() -> None:
+def test_an_airframe_overrides_only_the_gains_it_names() -> None:
     document = _document("quad_x")
-    del document["controller"]["k_dphi"]
+    document["controller"] = {"k_dphi": 100.0}
     airframe = airframe_from_dict(document, origin="quad_x.yaml", source_path=Path("quad_x.yaml"))
-    with pytest.raises(GainError, match=r"quad_x\.yaml: controller\.k_dphi: missing"):
-        airframe_gains(airframe)
+    assert airframe_gains(airframe) == SEED1_GAINS.replace(k_dphi=100.0)
+
+
+def test_an_airframe_without_a_controller_section_gets_the_seed_1_gains() -> None:
+    document = _document("quad_x")
+    del document["controller"]
+    assert airframe_gains(airframe_from_dict(document, origin="quad_x.yaml")) == SEED1_GAINS
+
+
+def test_the_seed_1_gains_follow_their_stated_derivation() -> None:
+    # gains.py derives each loop gain from a natural frequency and a damping; the values are rounded.
+    g = SEED1_GAINS
+    attitude_frequency, attitude_damping = 8.0, 0.8
+    position_frequency, position_damping = 1.6, 0.9
+    for k_p, k_d in ((g.k_ptheta, g.k_dtheta), (g.k_pphi, g.k_dphi)):
+        assert k_p == pytest.approx(attitude_frequency**2 * GRAVITY_M_S2, rel=0.01)
+        assert k_d == pytest.approx(2 * attitude_damping * attitude_frequency * GRAVITY_M_S2, rel=0.01)
+    for k_p, k_d, k_attitude in ((g.k_px, g.k_dx, g.k_ptheta), (g.k_py, g.k_dy, g.k_pphi)):
+        assert k_p == pytest.approx(position_frequency**2 * k_attitude / GRAVITY_M_S2, rel=0.01)
+        assert k_d == pytest.approx(
+            2 * position_damping * position_frequency * k_attitude / GRAVITY_M_S2, rel=0.01
+        )
+    assert g.b_ptheta > g.b_px + g.b_dx and g.b_pphi > g.b_py + g.b_dy
+
+
+@pytest.mark.parametrize("name", AIRFRAMES)
+def test_every_airframe_s_rotors_are_fast_enough_for_the_shared_attitude_loop(name: str) -> None:
+    # The one set of gains holds where the rotor lag's bandwidth is at least 4 times the attitude loop's.
+    gains = airframe_gains(load_airframe(name))
+    attitude_frequency = math.sqrt(max(gains.k_pphi, gains.k_ptheta) / GRAVITY_M_S2)
+    assert 1.0 / load_airframe(name).motor_time_constant_s >= 4.0 * attitude_frequency
 
 
 def test_an_unknown_gain_key_is_refused() -> None:

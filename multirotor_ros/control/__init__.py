@@ -1,6 +1,6 @@
 """Control of one multirotor with the law of seed 1 (§II-B, eqs. 8-10); pure numpy, no ROS.
 
-- :mod:`.law`: :class:`SaturationController` (nested saturations for x/y through roll and pitch, PID for
+- :mod:`.law`: :class:`SaturationController` (a sum of saturations for x/y through roll and pitch, PID for
   altitude and yaw), :func:`saturate` (eq. 10).
 - :mod:`.allocation`: :class:`Allocator`, wrench -> rotor speeds with roll/pitch before thrust before yaw.
 - :mod:`.gains`: :class:`ControllerGains` under the paper's names, read from an airframe YAML.

@@ -1,4 +1,4 @@
-"""Gains of the seed 1 control law (eqs. 8-10) under the paper's names, read from an airframe's YAML.
+"""Gains of the seed 1 control law (eqs. 8-10) under the paper's names: one set, overridden per airframe YAML.
 
 Units follow from eq. 9 as printed, tau_phi = I_xx/g [sigma_py(k_py e_y) + sigma_dy(k_dy vy) -
 sigma_pphi(k_pphi phi) - sigma_dphi(k_dphi dphi)]: the bracket divided by g is an angular acceleration,
@@ -12,6 +12,9 @@ The altitude and yaw PIDs (eq. 8) act on accelerations: thrust = m (g + k_pz e_z
 is integrated is the error through a saturation of the paper's eq. 10, sigma_iz(e_z) and sigma_ipsi(e_psi)
 (a climb of a metre would otherwise wind the integral up for an overshoot), each integral term is clamped
 to ``i_limit_*``, and integration stops while the rotors cannot deliver what is asked.
+
+The gains are defined once, in :data:`SEED1_GAINS` below; an airframe's YAML ``controller:`` section
+holds only the gains that differ for that airframe, each with its reason.
 """
 
 from __future__ import annotations
@@ -113,8 +116,54 @@ def gain_problem(name: str, value: Any) -> str | None:
     return None
 
 
+# Seed 1 prints no gains: these are tuned here, by simulation of the X8 with motor lag, and used by every
+# airframe. The law works in accelerations (torques are the inertia times them, thrust the mass times
+# them), so the same numbers give the same closed loop on any airframe whose rotors follow their commands
+# well inside the attitude loop's bandwidth (test_control.py checks every airframe in config/).
+SEED1_GAINS = ControllerGains(
+    # Inner attitude loop: d2phi/dt2 = -(k_pphi/g) phi - (k_dphi/g) dphi, i.e. 8 rad/s natural frequency,
+    # damping 0.8: well inside the rotor lag's bandwidth (1/0.03 s = 33 rad/s for the slowest rotors in
+    # config/) and the 250 Hz loop.
+    k_ptheta=630.0,  # [m/s^4/rad] (8 rad/s)^2 * g
+    k_dtheta=125.0,  # [m/s^3/rad] 2 * 0.8 * 8 rad/s * g
+    b_ptheta=400.0,  # [m/s^4] above b_px + b_dx, so the attitude term can always balance them
+    b_dtheta=500.0,  # [m/s^4] the pitch rate term saturates beyond 500/125 = 4 rad/s
+    k_pphi=630.0,  # [m/s^4/rad] as pitch: the airframes in config/ are symmetric enough
+    k_dphi=125.0,  # [m/s^3/rad]
+    b_pphi=400.0,  # [m/s^4]
+    b_dphi=500.0,  # [m/s^4]
+    # Outer position loop: d2x/dt2 = -(g/k_ptheta)(k_px e_x + k_dx v_x): 1.6 rad/s, damping 0.9.
+    k_px=165.0,  # [1/s^4] (1.6 rad/s)^2 * k_ptheta / g
+    k_dx=185.0,  # [1/s^3] 2 * 0.9 * 1.6 rad/s * k_ptheta / g
+    b_px=160.0,  # [m/s^4] at most 160/630 = 0.25 rad of tilt for position error (saturates beyond ~1 m)
+    b_dx=190.0,  # [m/s^4] at most 0.3 rad for velocity; cruise speed b_px/k_dx = 0.86 m/s
+    k_py=165.0,  # [1/s^4] as x
+    k_dy=185.0,  # [1/s^3]
+    b_py=160.0,  # [m/s^4]
+    b_dy=190.0,  # [m/s^4]
+    # Altitude PID (eq. 8) on vertical acceleration, gravity feed-forward.
+    k_pz=9.0,  # [1/s^2] 3 rad/s
+    k_dz=6.0,  # [1/s] damping 1
+    k_iz=4.0,  # [1/s^3] removes a thrust shortfall (a lost rotor) within a few seconds
+    i_limit_z=4.0,  # [m/s^2] 40 % of g: the X8 on seven rotors lacks 1/8 of its thrust, 12.5 % of g
+    b_iz=0.1,  # [m] integrated error saturated, so a 1 m climb overshoots ~5 %
+    # Yaw PID (eq. 8) on yaw acceleration.
+    k_ppsi=16.0,  # [1/s^2] 4 rad/s
+    k_dpsi=8.0,  # [1/s] damping 1
+    k_ipsi=4.0,  # [1/s^3] cancels the drag torque imbalance of a lost rotor
+    i_limit_psi=1.0,  # [rad/s^2]
+    b_ipsi=0.2,  # [rad] integrated error saturated (anti-windup)
+    rate_hz=250.0,  # [Hz] control and motor command rate
+)
+
+
 def gains_from_section(section: Mapping[str, Any] | None, origin: str) -> ControllerGains:
-    """Validate an airframe YAML's ``controller:`` mapping; errors name ``origin`` (the file) and the key."""
+    """:data:`SEED1_GAINS` with an airframe YAML's ``controller:`` overrides (None: no overrides).
+
+    Errors name ``origin`` (the file) and the key.
+    """
+    if section is None:
+        return SEED1_GAINS
     if not isinstance(section, Mapping):
         raise GainError(f"{origin}: controller: expected a mapping of gains ({', '.join(GAIN_UNITS)})")
     unknown = sorted(set(section) - set(GAIN_UNITS))
@@ -122,20 +171,14 @@ def gains_from_section(section: Mapping[str, Any] | None, origin: str) -> Contro
         raise GainError(
             f"{origin}: controller.{unknown[0]}: unknown key; the gains are {', '.join(GAIN_UNITS)}"
         )
-    missing = [name for name in GAIN_UNITS if name not in section]
-    if missing:
-        raise GainError(
-            f"{origin}: controller.{missing[0]}: missing ({GAIN_UNITS[missing[0]][0]}, "
-            f"{GAIN_UNITS[missing[0]][1]})"
-        )
-    for name in GAIN_UNITS:
-        problem = gain_problem(name, section[name])
+    for name, value in section.items():
+        problem = gain_problem(name, value)
         if problem:
             raise GainError(f"{origin}: controller.{name}: {problem}")
-    return ControllerGains(**{name: float(section[name]) for name in GAIN_UNITS})
+    return SEED1_GAINS.replace(**{name: float(value) for name, value in section.items()})
 
 
 def airframe_gains(airframe: Any) -> ControllerGains:
-    """The gains of an :class:`~multirotor_ros.model.airframe.Airframe` (its YAML's controller section)."""
+    """An :class:`~multirotor_ros.model.airframe.Airframe`'s gains: :data:`SEED1_GAINS` and its overrides."""
     origin = str(airframe.source_path) if airframe.source_path is not None else airframe.name
     return gains_from_section(airframe.sections.get("controller"), origin)

@@ -2,8 +2,10 @@
 
 - Altitude and yaw: PID, eq. 8, on acceleration, with gravity feed-forward and tilt compensation for
   the thrust (see gains.py for the exact form) and clamped integrals (anti-windup).
-- x and y: the nested saturation law of eqs. 9-10 through pitch and roll, the attitude terms of the same
-  bracket being the inner attitude loop:
+- x and y: the saturation law of eqs. 9-10 through pitch and roll, the attitude terms of the same
+  bracket being the inner attitude loop. It is a sum of saturations, each term bounded separately ("each
+  state is bounded separately", seed 1 §II-B), not nested saturations sigma_1(a + sigma_2(b + ...)):
+  the bracket is bounded by the sum of the four bounds, and no term's saturation limits another's:
 
       tau_phi   = I_xx/g [ s_py(k_py e_y) + s_dy(k_dy v_y) - s_pphi(k_pphi phi) - s_dphi(k_dphi dphi)]
       tau_theta = I_yy/g [-s_px(k_px e_x) - s_dx(k_dx v_x) - s_pth(k_ptheta theta) - s_dth(k_dtheta dtheta)]
