@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,14 +12,24 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from multirotor_ros.model import state as S
-from multirotor_ros.model.airframe import GRAVITY_M_S2, load_airframe
+from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe, load_airframe
 from multirotor_ros.model.compiled import CompiledStepper
-from multirotor_ros.model.effects import EFFECTS, Effect, make_effect, parse_effect_list
+from multirotor_ros.model.effects import (
+    EFFECTS,
+    Effect,
+    Parameter,
+    ReferenceCondition,
+    check_formulas,
+    make_effect,
+    parse_effect_list,
+)
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import euler_to_matrix
 from multirotor_ros.model.state import StateBatch
+from multirotor_ros.resources import config_directory
 
 X8 = load_airframe("x8_octorotor")
+AIRFRAMES = [load_airframe(path.stem) for path in sorted(config_directory().glob("*.yaml"))]
 SAMPLE_PARAMETERS = {
     "quadratic_drag": {"c_x": 0.47, "c_y": 0.4, "c_z": 0.2},
     "rotor_drag": {"k_h": 2e-4},
@@ -32,59 +44,126 @@ SAMPLE_PARAMETERS = {
     "gyroscopic": {"j_r": 1e-4},
     "cg_offset": {"r_x": 0.01, "r_y": -0.02},
 }
-# effects.md, verbatim: the ids and parameter names other programs rely on.
-SPEC_PARAMETERS = {
-    "quadratic_drag": ["c_x", "c_y", "c_z"],
-    "rotor_drag": ["k_h"],
-    "thrust_speed_dependence": ["k_f1"],
-    "coaxial_loss": ["eta_lower"],
-    "ground_effect": ["rotor_radius_m"],
-    "inflow_thrust_loss": ["k_v"],
-    "motor_lag": ["tau_s"],
-    "mass_offset": ["dm_kg"],
-    "constant_force": ["f_x", "f_y", "f_z"],
-    "actuator_fault": ["motor", "effectiveness", "t_fault_s"],
-    "gyroscopic": ["j_r"],
-    "cg_offset": ["r_x", "r_y"],
-}
+SPEC = Path(__file__).resolve().parents[2] / "shared" / "spec" / "effects.md"
 
 
+def sample_parameters(effect_id: str, n_rotors: int = 8) -> dict[str, float]:
+    """Parameters that make the effect act; per-rotor ones differ from rotor to rotor."""
+    per_rotor = EFFECTS[effect_id].PER_ROTOR_PARAMETER
+    if per_rotor is not None:
+        return {f"{per_rotor.name}_{i}": 1.0 - 0.05 * i for i in range(1, n_rotors + 1)}
+    return SAMPLE_PARAMETERS[effect_id]
+
+
+def spec_parameters() -> dict[str, list[str]]:
+    """Effect ids and parameter names as effects.md writes them (e_1 ... e_N read as the per-rotor e_i)."""
+    table = {}
+    for line in SPEC.read_text().splitlines():
+        cells = [c.strip() for c in line.split("|")]
+        if len(cells) > 3 and re.fullmatch(r"`[a-z_]+`", cells[1]):
+            names = re.findall(r"`([a-z_0-9N]+)`", cells[2])
+            if names and names[-1].endswith("_N"):
+                names = [names[0].rsplit("_", 1)[0] + "_i"]
+            table[cells[1].strip("`")] = names
+    return table
+
+
+@pytest.mark.skipif(not SPEC.exists(), reason="the project's shared/spec is not beside this checkout")
 def test_registry_matches_the_spec() -> None:
-    assert {k: list(v.parameter_units) for k, v in EFFECTS.items()} == SPEC_PARAMETERS
+    """The ids and parameter names other programs rely on are those of effects.md, verbatim."""
+    ours = {k: [p.name for p in cls.parameter_list(None)] for k, cls in EFFECTS.items()}
+    assert ours == spec_parameters()
 
 
+@pytest.mark.parametrize("airframe", AIRFRAMES, ids=lambda a: a.name)
 @pytest.mark.parametrize("effect_id", sorted(EFFECTS))
-def test_effect_contract(effect_id: str) -> None:
-    """The contract every effect keeps: names itself, refuses bad parameters, acts finitely."""
-    parameters = SAMPLE_PARAMETERS[effect_id]
+def test_effect_contract(effect_id: str, airframe: Airframe) -> None:
+    """The contract every effect keeps on every airframe: names itself, refuses bad parameters, acts finitely.
+
+    Like PySINDy's one test over every feature library: a new effect class is held to it without a new test.
+    """
+    cls = EFFECTS[effect_id]
+    n = airframe.n_rotors
+    parameters = sample_parameters(effect_id, n)
     effect = make_effect({"id": effect_id, **parameters})
     assert isinstance(effect, Effect) and effect.id == effect_id and effect_id in repr(effect)
+    assert cls.description() and cls.regime, "an effect says what it adds and where a flight shows it"
     assert make_effect(effect.spec()).parameters.keys() == effect.parameters.keys()
     with pytest.raises(ValueError, match="unknown parameter"):
         make_effect({"id": effect_id, **parameters, "bogus": 1.0})
     with pytest.raises(ValueError, match="missing parameter"):
-        make_effect({"id": effect_id})
+        make_effect({"id": effect_id, **{k: v for k, v in parameters.items() if k != next(iter(parameters))}})
     first = next(iter(parameters))
     with pytest.raises(ValueError, match=first):
         make_effect({"id": effect_id, **parameters, first: math.nan})
-    model = Model(X8, [effect])
+    for parameter in cls.parameter_list(n):
+        assert parameter.unit and parameter.excited_by
+        reference = ReferenceCondition.of(airframe)
+        assert math.isfinite(parameter.scale(reference)) and parameter.scale(reference) > 0
+        lower, upper = parameter.bounds(reference)
+        assert lower <= parameter.start <= upper, f"{parameter.name} starts outside its bounds"
+        searched_elsewhere = parameter.linear_given_others or parameter.discrete or parameter.onset_time
+        if not parameter.linear and not searched_elsewhere:
+            assert parameter.search_grid, f"{parameter.name} is searched, so it needs a grid"
+    # The neutral parameters make no difference to the physics.
+    model = Model(airframe, [effect])
+    neutral = Model(airframe, [{"id": effect_id, **cls.neutral_parameters(n)}])
+    base = Model(airframe, [])
     x = S.make_state(
-        8,
+        n,
         batch=4,
-        position_m=(0, 0, 0.5),
+        position_m=(0, 0, 5.0),
         velocity_m_s=(2, -1, 0.5),
         euler_rad=(0.1, -0.2, 0.5),
         body_rate_rad_s=(0.3, 0.2, -0.1),
         rotor_speed_rad_s=330,
     )
-    assert np.all(np.isfinite(model.derivative(2.0, x, np.full((4, 8), 340.0))))
+    u = np.full((4, n), 340.0)
+    # Compared with the rotors at their command: a stand-in for "no lag" still moves a rotor that is not.
+    at_command = x.copy()
+    at_command[:, S.ROTORS_START :] = u
+    np.testing.assert_allclose(
+        neutral.derivative(2.0, at_command, u)[:, : S.ROTORS_START],
+        base.derivative(2.0, at_command, u)[:, : S.ROTORS_START],
+        rtol=1e-6,
+        atol=1e-6,
+    )
+    acting = model.derivative(2.0, x, u)
+    assert np.all(np.isfinite(acting))
+    if (
+        cls.not_applicable(airframe) is None
+        and cls.rotational is False
+        and not cls.formulas().keys() <= {"rotor_time_constant_s"}
+    ):
+        assert not np.allclose(acting, base.derivative(2.0, x, u)), (
+            f"{effect_id} does nothing on {airframe.name}"
+        )
     assert set(effect.linear_parameters) <= set(parameters)
+    # The compiled kernel, generated from the same formulas, gives the same derivative.
+    np.testing.assert_allclose(
+        CompiledStepper(model, 4).derivative(2.0, x, u), acting, rtol=1e-11, atol=1e-11
+    )
+
+
+def test_a_formula_reading_an_unknown_name_is_refused_at_definition() -> None:
+    class Misspelt(Effect):
+        """A force that reads a quantity that does not exist."""
+
+        id = "misspelt"
+        PARAMETERS = (Parameter("k", "N", 0.0, lambda r: 1.0, "any flight"),)
+
+        @staticmethod
+        def force_W(k, velocity_x):  # noqa: ANN001, ANN205 - the point is the wrong name
+            return k * velocity_x, 0.0, 0.0
+
+    with pytest.raises(TypeError, match="velocity_x"):
+        check_formulas(Misspelt)
 
 
 @pytest.mark.parametrize("effect_id", sorted(EFFECTS))
 def test_compiled_kernel_matches_the_reference_model(effect_id: str) -> None:
     """The compiled fast path evaluates the same formula as the numpy effect, effect by effect."""
-    model = Model(X8, [{"id": effect_id, **SAMPLE_PARAMETERS[effect_id]}])
+    model = Model(X8, [{"id": effect_id, **sample_parameters(effect_id)}])
     rng = np.random.default_rng(7)
     x = S.make_state(8, batch=16, position_m=(0, 0, 0.0), rotor_speed_rad_s=0.0)
     x[:, S.POSITION] = rng.uniform([-5, -5, 0.0], [5, 5, 3.0], (16, 3))
@@ -234,7 +313,7 @@ def test_cg_offset_by_hand() -> None:
 def test_any_effect_combination_keeps_the_state_finite(
     effect_ids: list[str], speed: float, height: float
 ) -> None:
-    model = Model(X8, [{"id": i, **SAMPLE_PARAMETERS[i]} for i in effect_ids])
+    model = Model(X8, [{"id": i, **sample_parameters(i)} for i in effect_ids])
     x = S.make_state(
         8, position_m=(0, 0, height), velocity_m_s=(speed, -speed, speed / 2), rotor_speed_rad_s=340
     )
@@ -246,3 +325,20 @@ def test_effect_list_parsing() -> None:
     assert parse_effect_list("quadratic_drag, rotor_drag") == ["quadratic_drag", "rotor_drag"]
     with pytest.raises(ValueError, match="warp"):
         parse_effect_list("quadratic_drag,warp")
+
+
+def test_gyroscopic_yaw_term_from_rotor_acceleration() -> None:
+    """Seed 1 eq. 7's J_r dOmega_r/dt: rotors speeding up twist the body the other way about z."""
+    tau_s, j_r = 0.05, 1e-4
+    lagging = Model(X8, [{"id": "motor_lag", "tau_s": tau_s}])
+    with_gyro = Model(X8, [{"id": "motor_lag", "tau_s": tau_s}, {"id": "gyroscopic", "j_r": j_r}])
+    x = S.make_state(8, position_m=(0, 0, 10), rotor_speed_rad_s=300.0)
+    command = np.array([[300.0, 340, 340, 300, 300, 340, 340, 300]])  # the cw rotors (2, 3, 6, 7) speed up
+    yaw_acceleration = (
+        with_gyro.derivative(0.0, x, command)[0, 12] - lagging.derivative(0.0, x, command)[0, 12]
+    )
+    omega_dot = (command[0] - 300.0) / tau_s
+    # Body torque -dh_r/dt with h_r = J_r sum(-s_i omega_i): J_r sum(s_i domega_i/dt) about +z.
+    expected_torque = j_r * float(X8.spin_signs @ omega_dot)
+    np.testing.assert_allclose(yaw_acceleration * X8.inertia_kg_m2[2, 2], expected_torque, rtol=1e-9)
+    assert expected_torque > 0

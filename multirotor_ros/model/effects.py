@@ -157,6 +157,8 @@ class Parameter:
     linear_given_others: bool = False
     discrete: bool = False
     fit_bounds: Callable[[ReferenceCondition], tuple[float, float]] | None = None
+    # A time in the log from which the effect acts: searched over the log's own sample times.
+    onset_time: bool = False
     search_grid: tuple[float, ...] = ()
     search_start: float | None = None
 
@@ -663,7 +665,16 @@ class ActuatorFault(Effect):
             linear=False,
             linear_given_others=True,
         ),
-        Parameter("t_fault_s", "s", 0.0, lambda r: 1.0, "flight after the fault", lower=0.0, linear=False),
+        Parameter(
+            "t_fault_s",
+            "s",
+            0.0,
+            lambda r: 1.0,
+            "flight after the fault",
+            lower=0.0,
+            linear=False,
+            onset_time=True,
+        ),
     )
     # A damaged propeller or a weak ESC loses torque with thrust: both scale together.
     scales_rotor_torque = True
@@ -758,7 +769,7 @@ EFFECTS: dict[str, type[Effect]] = {
 TRANSLATIONAL_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.rotational)
 
 
-def _check_formulas(cls: type[Effect]) -> None:
+def check_formulas(cls: type[Effect]) -> None:
     """Every name a formula reads must be a parameter or a known quantity: a typo fails at import."""
     parameters = {p.name for p in cls.PARAMETERS}
     if cls.PER_ROTOR_PARAMETER is not None:
@@ -775,7 +786,7 @@ def _check_formulas(cls: type[Effect]) -> None:
 
 
 for _cls in EFFECTS.values():
-    _check_formulas(_cls)
+    check_formulas(_cls)
 
 
 def effect_class(effect_id: str) -> type[Effect]:
