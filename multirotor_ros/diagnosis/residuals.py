@@ -124,8 +124,7 @@ class WrenchResidualGenerator:
 
     def signatures(self, ctx: EffectContext) -> FloatArray:
         """(B, 4, N) each rotor's own wrench contribution in the model at these states."""
-        thrust, torque_factor = self.model.rotor_thrusts(ctx)
-        drag_torque = self.model.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor
+        thrust, drag_torque = self.model.rotor_loads(ctx)
         return rotor_signatures(self.model.airframe, thrust, drag_torque)
 
     def update(self, state: StateBatch, dt_s: float) -> ResidualSample:

@@ -9,16 +9,18 @@ fit estimates it): an axis with noisy accelerations does not drown the others, a
   effectiveness once its rotor and onset are fixed) are solved exactly, within their physical bounds
   (:mod:`.parameters`); the bilinear pair k_f x eta_lower by Gauss–Newton iterations of that solve.
 - Non-linear parameters are searched with the linear ones solved inside each evaluation (variable
-  projection): ``rotor_radius_m`` (ground_effect) and ``tau_s`` (motor_lag) on a logarithmic grid, then
-  bounded Brent refinement; ``actuator_fault`` by an exhaustive search over rotor x onset sample, exact for
-  the linear parameters through suffix sums, helped by the torque balance when the log allows it (a rotor
-  that lost thrust unbalances the torques the most clearly); effectiveness is then linear.
+  projection): a continuous one (``rotor_radius_m``, ``tau_s``) over its effect's search grid, then
+  bounded Brent refinement; an effect with a discrete parameter (``actuator_fault``'s rotor number) by an
+  exhaustive search over rotor x onset sample (:class:`RotorOnsetSearch`), exact for the linear
+  parameters through suffix sums, helped by the torque balance when the log allows it (a rotor that lost
+  thrust unbalances the torques the most clearly); its factor on that rotor is then linear.
 - Standard deviations: the sandwich (Newey–West) covariance with a bandwidth taken from the residuals'
   autocorrelation, because closed-loop flight residuals are not white; the white-noise formula would
   give smaller, overconfident values (the inflation is reported in the notes).
 - A parameter whose standard deviation exceeds half of max(|value - neutral|, scale) is not identifiable
-  on this log (:mod:`.parameters`): it is held (at its starting value), the others are refitted, and the
-  reason is reported: nearly collinear with another parameter, or the regime that would excite it absent.
+  on this log (:mod:`.parameters`; the thresholds are :class:`~multirotor_ros.ident.settings.FitSettings`):
+  it is held (at its starting value), the others are refitted, and the reason is reported: nearly
+  collinear with another parameter, or the regime that would excite it absent.
 """
 
 from __future__ import annotations
@@ -30,40 +32,59 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import lsq_linear, minimize_scalar
 
-from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef, parameter_spec
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, FittedParameter, ParameterRef, parameter_facts
 from multirotor_ros.ident.regressors import (
-    CONDITIONALLY_LINEAR,
     ForceRegressor,
     is_bilinear,
+    is_regressed,
     parameter_value,
     with_values,
 )
 from multirotor_ros.ident.samples import FlightSamples, MeasurementChain, describe_range
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.effects import EFFECTS, EffectContext
+from multirotor_ros.model.effects import EFFECTS, EffectContext, effect_class, formula_arguments
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.model.rotors import rotor_signatures
 
 Progress = Callable[[str], None]
-RADIUS = ("ground_effect", "rotor_radius_m")
-TAU = ("motor_lag", "tau_s")
-FAULT_MOTOR = ("actuator_fault", "motor")
-FAULT_ONSET = ("actuator_fault", "t_fault_s")
-FAULT_EFFECTIVENESS = ("actuator_fault", "effectiveness")
-SEARCH_GRIDS = {RADIUS: np.geomspace(0.01, 1.0, 15), TAU: np.geomspace(0.002, 0.3, 15)}
-NEUTRAL_SEARCH_VALUE = {RADIUS: 1e-6, TAU: 1e-4}
-MIN_FAULT_DURATION_S = 0.3
-IDENTIFIABLE_RELATIVE_STD = 0.5
-COLLINEAR_CORRELATION = 0.95
-EXACTLY_COLLINEAR = 0.9995
 
 
-def _is_linear(ref: ParameterRef) -> bool:
-    effect_id, name = ref
-    if effect_id == AIRFRAME:
-        return True
-    return name not in EFFECTS[effect_id].nonlinear_parameters or ref in CONDITIONALLY_LINEAR
+@dataclass(frozen=True)
+class RotorOnsetSearch:
+    """The parameters of an effect that acts on one rotor from an onset on, searched together.
+
+    An effect with a discrete parameter (a rotor number) is searched exhaustively over rotor x onset
+    sample: its other non-linear parameter is the onset time [s], and the one that is linear once both are
+    fixed is its factor on that rotor's thrust, which the search solves exactly through suffix sums.
+    """
+
+    rotor: ParameterRef
+    onset: ParameterRef
+    factor: ParameterRef
+
+    @classmethod
+    def of(cls, effect_id: str) -> RotorOnsetSearch | None:
+        """The search for ``effect_id``, or None if it has no discrete parameter."""
+        parameters = effect_class(effect_id).PARAMETERS
+        rotors = [p.name for p in parameters if p.discrete]
+        if not rotors:
+            return None
+        onsets = [p.name for p in parameters if not (p.linear or p.linear_given_others or p.discrete)]
+        factors = [p.name for p in parameters if p.linear_given_others]
+        if len(rotors) != 1 or len(onsets) != 1 or len(factors) != 1:
+            raise ValueError(
+                f"effect {effect_id!r}: a discrete parameter is searched as a rotor number, which needs one "
+                "onset time and one conditionally linear factor beside it; it has "
+                f"{', '.join(p.name for p in parameters)}"
+            )
+        return cls((effect_id, rotors[0]), (effect_id, onsets[0]), (effect_id, factors[0]))
+
+
+def _is_rotor_time_constant(ref: ParameterRef) -> bool:
+    """Whether the parameter sets the rotors' time constant (motor_lag's tau_s)."""
+    formula = effect_class(ref[0]).formulas().get("rotor_time_constant_s") if ref[0] != AIRFRAME else None
+    return formula is not None and ref[1] in formula_arguments(formula)
 
 
 @dataclass
@@ -120,9 +141,6 @@ def _model_key(model: Model, skip: Sequence[ParameterRef]) -> tuple:
     return tuple(values)
 
 
-DESIGN_CACHE_SIZE = 48
-
-
 def build_design(samples: FlightSamples, model: Model, linear: Sequence[ParameterRef]) -> Design:
     """The chained regression of ``linear`` parameters for ``model`` over every row of ``samples``.
 
@@ -134,9 +152,7 @@ def build_design(samples: FlightSamples, model: Model, linear: Sequence[Paramete
     if key in cache:
         return cache[key]
     regressor = ForceRegressor(model, linear)
-    lag = model.effect("motor_lag")
-    omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
-    ctx = samples.context(model, omega)
+    ctx = samples.model_context(model)
     s, F0, dF = regressor.parts(ctx, samples.a_W)
     if samples.chain.order > 0:
         F0 = samples.through_chain(F0)
@@ -145,7 +161,7 @@ def build_design(samples: FlightSamples, model: Model, linear: Sequence[Paramete
     if samples.nuisance is not None:
         y, Phi = _without_nuisance(samples, y, Phi)
     design = Design(y, Phi, regressor, model, ctx)
-    if len(cache) >= DESIGN_CACHE_SIZE:
+    if len(cache) >= samples.settings.design_cache_size:
         cache.pop(next(iter(cache)))
     cache[key] = design
     return design
@@ -228,9 +244,9 @@ class LinearSolver:
 
     def __init__(self, refs: Sequence[ParameterRef], airframe: Airframe, held: dict[ParameterRef, float]):
         self.refs = list(refs)
-        specs = [parameter_spec(r, airframe) for r in self.refs]
-        self.lower = np.array([s.lower for s in specs])
-        self.upper = np.array([s.upper for s in specs])
+        fitted = [FittedParameter.of(r, airframe) for r in self.refs]
+        self.lower = np.array([f.lower for f in fitted])
+        self.upper = np.array([f.upper for f in fitted])
         self.held = held
 
     def solve(self, design: Design, rows: FloatArray, weights: FloatArray) -> FloatArray:
@@ -284,8 +300,27 @@ class Fitter:
         self.rows = samples.valid.copy() if rows is None else (samples.valid & rows)
         self.progress = progress
         self.held: dict[ParameterRef, float] = dict(held or {})
-        self.linear = [r for r in self.free if _is_linear(r)]
-        self.searched = [r for r in self.free if not _is_linear(r)]
+        self.linear = [r for r in self.free if is_regressed(r)]
+        self.searched = [r for r in self.free if not is_regressed(r)]
+        searched_effects = dict.fromkeys(effect_id for effect_id, _ in self.searched)
+        self.rotor_onset_searches = [
+            search
+            for effect_id in searched_effects
+            if (search := RotorOnsetSearch.of(effect_id)) is not None and search.rotor in self.searched
+        ]
+        # Continuous searches in registry order, so that the order of the effects asked for changes nothing.
+        registry_order = list(EFFECTS)
+        self.scalar_searches = sorted(
+            (r for r in self.searched if parameter_facts(r).search_grid),
+            key=lambda r: registry_order.index(r[0]),
+        )
+        covered = {r for search in self.rotor_onset_searches for r in (search.rotor, search.onset)}
+        unsearchable = [r for r in self.searched if r not in covered and r not in self.scalar_searches]
+        if unsearchable:
+            raise ValueError(
+                f"{', '.join(f'{e}.{n}' for e, n in unsearchable)}: neither linear nor searchable on its own "
+                "(free it with the rest of its effect)"
+            )
         self.solver = LinearSolver(self.linear, model.airframe, self.held)
         self.weights = np.ones(3) if weights is None else np.asarray(weights, dtype=float)
         self._given_weights = weights is not None
@@ -335,19 +370,17 @@ class Fitter:
         def cost(value: float) -> float:
             return self.solve_linear(with_values(model, {ref: value}))[2]
 
-        grid = SEARCH_GRIDS[ref]
-        if ref == TAU:
+        facts = parameter_facts(ref)
+        grid = np.asarray(facts.search_grid, dtype=float)
+        if _is_rotor_time_constant(ref):
             # A lag shorter than half a sample interval cannot be told from smoothing the speed sensor's noise
             # (which also lowers the error): the search starts there.
             grid = np.geomspace(max(grid[0], 0.5 * self.samples.dt), grid[-1], grid.size)
-        values = [NEUTRAL_SEARCH_VALUE[ref], *grid.tolist()]
+        values = [facts.start, *grid.tolist()]
         if local:
             start = parameter_value(model, ref)
-            if start > 2 * NEUTRAL_SEARCH_VALUE[ref]:
-                values = [
-                    NEUTRAL_SEARCH_VALUE[ref],
-                    *np.geomspace(max(start / 2, grid[0]), start * 2, 5).tolist(),
-                ]
+            if start > 2 * facts.start:
+                values = [facts.start, *np.geomspace(max(start / 2, grid[0]), start * 2, 5).tolist()]
         costs = []
         for i, value in enumerate(values):
             costs.append(cost(value))
@@ -369,13 +402,13 @@ class Fitter:
         self._say(f"{label} = {value:.4g}")
         return with_values(model, {ref: value})
 
-    def _fault_search(self, model: Model) -> Model:
-        """Exhaustive rotor x onset search for actuator_fault (module docstring)."""
-        if FAULT_MOTOR in self.held:
+    def _rotor_onset_search(self, model: Model, search: RotorOnsetSearch) -> Model:
+        """Exhaustive rotor x onset search (:class:`RotorOnsetSearch`, module docstring)."""
+        if search.rotor in self.held:
             return model
         samples = self.samples
-        healthy = with_values(model, {FAULT_EFFECTIVENESS: 1.0})
-        others = [r for r in self.linear if r != FAULT_EFFECTIVENESS]
+        healthy = with_values(model, {search.factor: parameter_facts(search.factor).neutral})
+        others = [r for r in self.linear if r != search.factor]
         design = build_design(samples, healthy, others)
         solver = LinearSolver(others, healthy.airframe, self.held)
         theta = solver.solve(design, self.rows, self.weights)
@@ -383,12 +416,11 @@ class Fitter:
         design = build_design(samples, healthy, others)
         rows = self.rows
         n_rows = int(np.count_nonzero(rows))
-        thrust, torque_factor = healthy.rotor_thrusts(design.ctx)
+        thrust, drag_torque = healthy.rotor_loads(design.ctx)
         e_z = design.ctx.e_z_W
         airframe = healthy.airframe
         # Per-rotor columns of delta = 1 - effectiveness: the lost thrust and the lost rotor torque.
         force_cols = -thrust[:, :, None] * e_z[:, None, :]  # (T, N, 3)
-        drag_torque = airframe.k_t_N_m_s2 * design.ctx.omega**2 * torque_factor
         torque_cols = -rotor_signatures(airframe, thrust, drag_torque)[:, 1:, :].swapaxes(1, 2)  # (T, N, 3)
         if samples.chain.order > 0:
             force_cols = samples.through_chain(force_cols)
@@ -406,7 +438,7 @@ class Fitter:
         order = np.arange(rows.size)
         eligible = rows.copy()
         after = np.cumsum(rows[::-1])[::-1]
-        eligible &= after * samples.dt >= MIN_FAULT_DURATION_S
+        eligible &= after * samples.dt >= samples.settings.min_fault_duration_s
         best_score = np.zeros(airframe.n_rotors)
         best_index = np.zeros(airframe.n_rotors, dtype=int)
         profiles = []
@@ -440,11 +472,10 @@ class Fitter:
         ]
         self.fault_profile = (order, profiles[motor])
         self._say(
-            f"actuator_fault: rotor {motor + 1} from t = {samples.t[k]:.2f} s (searched {airframe.n_rotors} "
-            "rotors x "
-            f"{int(np.count_nonzero(eligible))} onsets over {n_rows} samples)"
+            f"{search.rotor[0]}: rotor {motor + 1} from t = {samples.t[k]:.2f} s (searched "
+            f"{airframe.n_rotors} rotors x {int(np.count_nonzero(eligible))} onsets over {n_rows} samples)"
         )
-        return with_values(model, {FAULT_MOTOR: motor + 1.0, FAULT_ONSET: float(samples.t[k])})
+        return with_values(model, {search.rotor: motor + 1.0, search.onset: float(samples.t[k])})
 
     def _torque_residual(self, model: Model, ctx: EffectContext) -> tuple[FloatArray, FloatArray] | None:
         """The torque balance residual (:func:`torque_residual`) scaled per axis, zero off the fitted rows."""
@@ -457,10 +488,10 @@ class Fitter:
         scale = np.maximum(scale, 1e-9)
         return np.where(rows[:, None], residual / scale, 0.0), scale
 
-    def _refine_onset(self, model: Model) -> Model:
+    def _refine_onset(self, model: Model, search: RotorOnsetSearch) -> Model:
         """Exact designs around the onset found by the search (the filter blurs a step by its window)."""
         samples = self.samples
-        onset = float(model.effect("actuator_fault")["t_fault_s"])
+        onset = parameter_value(model, search.onset)
         k = int(np.searchsorted(samples.t, onset))
         reach = max(samples.chain.half_window + 2, 3)
         best = (self.solve_linear(model)[2], onset)
@@ -468,10 +499,10 @@ class Fitter:
             candidate = float(samples.t[j])
             if candidate == onset:
                 continue
-            cost = self.solve_linear(with_values(model, {FAULT_ONSET: candidate}))[2]
+            cost = self.solve_linear(with_values(model, {search.onset: candidate}))[2]
             if cost < best[0]:
                 best = (cost, candidate)
-        return with_values(model, {FAULT_ONSET: best[1]})
+        return with_values(model, {search.onset: best[1]})
 
     # -- the whole fit -------------------------------------------------------------------------
 
@@ -483,15 +514,14 @@ class Fitter:
         """
         model = with_values(self.start_model, {r: v for r, v in self.held.items()})
         self.estimate_weights(model)
-        groups = [g for g in ("fault", RADIUS, TAU) if (FAULT_MOTOR if g == "fault" else g) in self.searched]
-        for _ in range(2 if len(groups) > 1 else 1):
-            for group in groups:
-                if group == "fault":
-                    model = self._fault_search(model)
-                    if refine and samples_blur(self.samples):
-                        model = self._refine_onset(model)
-                else:
-                    model = self._scalar_search(model, group, local)  # type: ignore[arg-type]
+        n_searches = len(self.rotor_onset_searches) + len(self.scalar_searches)
+        for _ in range(2 if n_searches > 1 else 1):
+            for search in self.rotor_onset_searches:
+                model = self._rotor_onset_search(model, search)
+                if refine and samples_blur(self.samples):
+                    model = self._refine_onset(model, search)
+            for ref in self.scalar_searches:
+                model = self._scalar_search(model, ref, local)
         design, theta, _ = self.solve_linear(model)
         return with_values(model, dict(zip(self.linear, theta.tolist(), strict=True)))
 
@@ -557,40 +587,16 @@ def newey_west(
 
 def excitation_evidence(ref: ParameterRef, samples: FlightSamples, model: Model, rows: FloatArray) -> str:
     """What this log shows of the regime that makes ``ref`` visible, in words."""
-    v = samples.v_WB_W[rows]
-    effect_id, name = ref
-    if ref in (("quadratic_drag", "c_x"), ("quadratic_drag", "c_y"), ("quadratic_drag", "c_z")):
-        axis = "xyz".index(name[-1])
-        return f"|v_{name[-1]}| is {describe_range(np.abs(v[:, axis]), 'm/s')}"
-    if ref == ("rotor_drag", "k_h"):
-        v_B = np.einsum("tji,tj->ti", samples.R_WB[rows], v)
-        return f"body-horizontal speed is {describe_range(np.linalg.norm(v_B[:, :2], axis=1), 'm/s')}"
-    if ref == ("thrust_speed_dependence", "k_f1"):
-        return f"mean rotor speed is {describe_range(samples.omega[rows].mean(axis=1), 'rad/s')}"
-    if ref == ("inflow_thrust_loss", "k_v"):
-        climb = np.einsum("ti,ti->t", v, samples.R_WB[rows][:, :, 2])
-        return f"climb speed along the thrust axis is {describe_range(climb, 'm/s')}"
-    if ref == ("coaxial_loss", "eta_lower"):
-        lower = model.airframe.lower_rotor_mask
-        if not lower.any():
-            return "the airframe has no coaxial rotors"
-        om = samples.omega[rows]
-        share = (om[:, lower] ** 2).sum(axis=1) / np.maximum((om**2).sum(axis=1), 1e-9)
-        return f"the lower rotors' share of sum(omega^2) is {describe_range(share, '')}"
-    if ref == RADIUS:
-        if not samples.height_known:
-            return "the log has no measured height"
-        radius = model.airframe.rotor_radius_m
-        return f"height is {describe_range(samples.p_WB_W[rows, 2], 'm')} (rotor radius about {radius:g} m)"
-    if ref == TAU:
-        rate = np.abs(np.diff(samples.omega[rows].mean(axis=1))) / samples.dt
-        return f"the mean rotor speed changes at {describe_range(rate, 'rad/s^2')}"
-    if effect_id == "actuator_fault":
-        fault = model.effect("actuator_fault")
-        onset = float(fault["t_fault_s"]) if fault is not None else math.nan
-        after = np.count_nonzero(rows & (samples.t >= onset)) * samples.dt
-        return f"the log has {after:.2f} s of usable flight after the onset t = {onset:.2f} s"
-    return f"{np.count_nonzero(rows)} usable samples"
+    effect = model.effect(ref[0])
+    if effect is None:
+        return f"{np.count_nonzero(rows)} usable samples"
+    why_not = effect.not_applicable(model.airframe)
+    if why_not is not None:
+        return why_not
+    if "height" in effect.log_needs and not samples.height_known:
+        return "the log has no measured height"
+    what, values, unit = effect.excitation(ref[1], samples.states(rows), model.airframe)
+    return f"{what} is {describe_range(values, unit)}"
 
 
 @dataclass
@@ -613,13 +619,14 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
     columns = [design.Phi]
     continuous = list(fitter.linear)
     probes: dict[ParameterRef, float] = {}
-    for ref in (RADIUS, TAU):
-        if ref in fitter.searched and ref not in fitter.held:
+    settings = samples.settings
+    for ref in fitter.scalar_searches:
+        if ref not in fitter.held:
             value = parameter_value(model, ref)
-            if value <= 2 * NEUTRAL_SEARCH_VALUE[ref]:
+            if value <= 2 * parameter_facts(ref).start:
                 # At "no effect" the force does not change to first order (the ground factor is quadratic in
                 # the radius): whether the log could show the effect is judged at a typical value instead.
-                value = parameter_spec(ref, model.airframe).scale
+                value = FittedParameter.of(ref, model.airframe).scale
                 probes[ref] = value
             step = max(1e-4, 1e-3 * value)
             lo, hi = max(value - step, 1e-6), value + step
@@ -659,19 +666,18 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
                 f"{probes[ref]:g}"
             )
         ratios = []
+        fitted = {ref: FittedParameter.of(ref, model.airframe) for ref in refs_free}
         for i, ref in enumerate(refs_free):
-            spec = parameter_spec(ref, model.airframe)
-            allowed = IDENTIFIABLE_RELATIVE_STD * max(
-                abs(probes.get(ref, parameter_value(model, ref)) - spec.neutral), spec.scale
+            allowed = settings.identifiable_relative_std * max(
+                abs(probes.get(ref, parameter_value(model, ref)) - fitted[ref].neutral), fitted[ref].scale
             )
             ratios.append((float(sd[i]) / allowed if allowed > 0 else math.inf, allowed))
-        # Columns this close are one column: the data give only a combination, and noise in the inputs (errors
-        # in
-        # variables) makes the std of each meaningless, so the verdict does not wait for the std to be large.
+        # Columns this close are one column: the data give only a combination, and noise in the inputs
+        # (errors in variables) makes the std of each meaningless, so the verdict does not wait for the std.
         collinear: dict[int, tuple[int, float]] = {}
         for i in range(len(refs_free)):
             for j in range(i + 1, len(refs_free)):
-                if abs(corr[i, j]) >= EXACTLY_COLLINEAR:
+                if abs(corr[i, j]) >= settings.exactly_collinear:
                     k_f_index = next((k for k in (i, j) if refs_free[k] == (AIRFRAME, K_F)), None)
                     victim = (
                         k_f_index if k_f_index is not None else (i if ratios[i][0] >= ratios[j][0] else j)
@@ -679,7 +685,6 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
                     collinear[victim] = (j if victim == i else i, abs(float(corr[i, j])))
         for i, ref in enumerate(refs_free):
             std[ref] = float(sd[i])
-            spec = parameter_spec(ref, model.airframe)
             value = parameter_value(model, ref)
             ratio, allowed = ratios[i]
             if i in collinear or not sd[i] <= allowed or norms[i] == 1.0 and np.allclose(A[:, i], 0):
@@ -687,7 +692,7 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
                 partner = max(others, default=(0.0, None))
                 if i in collinear:
                     partner = (collinear[i][1], refs_free[collinear[i][0]])
-                if partner[1] is not None and partner[0] >= COLLINEAR_CORRELATION:
+                if partner[1] is not None and partner[0] >= settings.collinear_correlation:
                     why = (
                         f"nearly collinear with {partner[1][1]} (correlation {partner[0]:.5f}): this log "
                         "determines only "
@@ -697,7 +702,7 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
                     why = (
                         "too little excitation for the noise and unexplained error of this log "
                         f"({residual_rms:.2g} "
-                        f"m/s^2 RMS): it shows in {spec.excited_by}, and "
+                        f"m/s^2 RMS): it shows in {fitted[ref].facts.excited_by}, and "
                         f"{excitation_evidence(ref, samples, model, rows)}"
                     )
                 not_identifiable[ref] = (
@@ -725,9 +730,7 @@ def torque_residual(samples: FlightSamples, model: Model) -> FloatArray:
     """
     key = ("torque residual", _model_key(model, ()))
     if key not in samples.design_cache:
-        lag = model.effect("motor_lag")
-        omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
-        _, tau, _ = model.wrench(samples.context(model, omega))
+        _, tau, _ = model.wrench(samples.model_context(model))
         inertia = model.inertia_kg_m2
         w = samples.w_WB_B
         gyro = np.cross(w, w @ inertia.T)
@@ -773,13 +776,10 @@ def fit_parameters(
             ref = uncertainty.worst
             verdicts[ref] = uncertainty.not_identifiable[ref]
             held[ref] = parameter_value(model, ref)
-            if ref == FAULT_EFFECTIVENESS:
-                held.update(
-                    {
-                        FAULT_MOTOR: parameter_value(model, FAULT_MOTOR),
-                        FAULT_ONSET: parameter_value(model, FAULT_ONSET),
-                    }
-                )
+            for search in fitter.rotor_onset_searches:
+                if ref == search.factor:
+                    # Without its factor the rotor and onset have nothing to choose between.
+                    held.update({r: parameter_value(model, r) for r in (search.rotor, search.onset)})
             if progress is not None:
                 progress(f"holding {ref[1]} at {held[ref]:.4g}: not identifiable")
             continue
@@ -787,15 +787,17 @@ def fit_parameters(
         notes += uncertainty.notes
         break
     std = dict(uncertainty.std)
-    if FAULT_ONSET in fitter.searched and FAULT_ONSET not in held and fitter.fault_profile is not None:
+    for search in fitter.rotor_onset_searches:
+        if search.onset in held or fitter.fault_profile is None:
+            continue
         order, profile = fitter.fault_profile
         finite = np.isfinite(profile)
         near = finite & (profile >= np.max(profile[finite]) - 1.0)
         spread = samples.t[near]
-        std[FAULT_ONSET] = float(max((spread.max() - spread.min()) / 2, samples.dt / 2))
+        std[search.onset] = float(max((spread.max() - spread.min()) / 2, samples.dt / 2))
         notes.append(
-            "t_fault_s std: half the span of onsets whose fit is within one (whitened) unit of the best; "
-            "motor is a discrete choice (no std)"
+            f"{search.onset[1]} std: half the span of onsets whose fit is within one (whitened) unit of the "
+            f"best; {search.rotor[1]} is a discrete choice (no std)"
         )
     mass = np.asarray(fitted.mass_kg, dtype=float)
     acc_residual = np.where(fitter.rows[:, None], residual / mass, np.nan)

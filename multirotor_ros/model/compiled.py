@@ -335,6 +335,7 @@ class _KernelWriter:
             "    for lane in range(lanes):",
             f"        omega = {'y[_OMEGA + i * L + lane]' if self.lag else 'u[i * L + lane]'}",
             "        thrust = prm[2 * L + lane] * omega * omega",
+            "        drag = prm[3 * L + lane] * omega * omega",
             "        factor = 1.0",
             "        torque_factor = 1.0",
         ]
@@ -342,6 +343,8 @@ class _KernelWriter:
             call = self.call(cls, hook, q)
             if hook == "rotor_thrust_term":
                 lines.append(f"        thrust += {call}")
+            elif hook == "rotor_drag_torque_term":
+                lines.append(f"        drag += {call}")
             else:
                 lines.append(f"        f = {call}")
                 lines.append("        factor *= f")
@@ -349,7 +352,7 @@ class _KernelWriter:
                     lines.append("        torque_factor *= f")
         lines += [
             "        thrust *= factor",
-            "        drag = prm[3 * L + lane] * omega * omega * torque_factor",
+            "        drag *= torque_factor",
             "        tx, ty, tz = rotor_torque_terms(thrust, drag, rotor_x, rotor_y, spin_i)",
             f"        work[{self.row('total')}] += thrust",
             f"        work[{self.row('tau_x')}] += tx",

@@ -16,6 +16,7 @@ An effect is one class. It carries
 Formulas (all optional; a class defines those through which it acts):
 
 - ``rotor_thrust_term(...)``: thrust added to rotor i's k_f omega_i^2 [N];
+- ``rotor_drag_torque_term(...)``: drag-torque magnitude added to rotor i's k_t omega_i^2 [N m];
 - ``rotor_thrust_factor(...)``: factor on rotor i's thrust (after the terms); with ``scales_rotor_torque``
   also on its drag torque;
 - ``force_W(...)``: (f_x, f_y, f_z) added in world ENU [N];
@@ -82,13 +83,14 @@ ROTOR_QUANTITIES: dict[str, str] = {
 }
 FORMULAS = (
     "rotor_thrust_term",
+    "rotor_drag_torque_term",
     "rotor_thrust_factor",
     "force_W",
     "torque_B",
     "mass_delta_kg",
     "rotor_time_constant_s",
 )
-ROTOR_FORMULAS = ("rotor_thrust_term", "rotor_thrust_factor")
+ROTOR_FORMULAS = ("rotor_thrust_term", "rotor_drag_torque_term", "rotor_thrust_factor")
 # Quantities whose value changes within an integration step even with the command held.
 STATE_QUANTITIES = frozenset(VEHICLE_QUANTITIES) - {"omega_sum", "spin_momentum", "total_thrust"}
 
@@ -102,6 +104,7 @@ class ReferenceCondition:
     n_rotors: int
     mass_kg: float
     k_f_N_s2: float
+    k_t_N_m_s2: float
     rotor_radius_m: float
     arm_length_m: float  # mean horizontal distance of the rotors from the body origin
     speed_m_s: float = 3.0
@@ -119,6 +122,7 @@ class ReferenceCondition:
             n_rotors=airframe.n_rotors,
             mass_kg=airframe.mass_kg,
             k_f_N_s2=airframe.k_f_N_s2,
+            k_t_N_m_s2=airframe.k_t_N_m_s2,
             rotor_radius_m=airframe.rotor_radius_m,
             arm_length_m=float(np.mean(np.linalg.norm(airframe.rotor_positions_m[:, :2], axis=1))),
         )
@@ -730,6 +734,29 @@ def _cg_scale(reference: ReferenceCondition) -> float:
     return reference.force_share * reference.arm_length_m
 
 
+class YawDragTorque(Effect):
+    """Rotor drag torques differ from the airframe's k_t: Q_i = (k_t + dk_t) omega_i^2 (the yaw balance)."""
+
+    id = "yaw_drag_torque"
+    PARAMETERS = (
+        Parameter(
+            "dk_t",
+            "N m s^2/rad^2",
+            0.0,
+            # A change of the yaw torque by the reference share of one rotor's hover drag torque.
+            lambda r: r.force_share * r.k_t_N_m_s2,
+            "rotor speeds that differ between cw and ccw rotors (yaw manoeuvres, yaw trim)",
+        ),
+    )
+    rotational = True
+    regime = "yaw manoeuvres and the yaw trim (cw against ccw rotor speeds)"
+    torque_signature = "a larger drag torque makes the cw and ccw rotors' speeds differ more for the same yaw"
+
+    @staticmethod
+    def rotor_drag_torque_term(dk_t: Any, omega: Any) -> Any:
+        return dk_t * omega * omega
+
+
 class CgOffset(Effect):
     """Thrust acts about a centre of gravity moved by (r_x, r_y) in body FLU."""
 
@@ -764,6 +791,7 @@ EFFECTS: dict[str, type[Effect]] = {
         ActuatorFault,
         Gyroscopic,
         CgOffset,
+        YawDragTorque,
     )
 }
 TRANSLATIONAL_EFFECTS = tuple(k for k, cls in EFFECTS.items() if not cls.rotational)

@@ -102,7 +102,7 @@ class Model:
     # ------------------------------------------------------------------ forces
 
     def context(self, state: S.StateBatch, omega_dot: FloatArray | None = None) -> EffectContext:
-        """A batch of states with what the effects need of the airframe (``omega_dot``: rotor accelerations)."""
+        """A batch of states for the effects, with the airframe; ``omega_dot``: rotor accelerations."""
         return EffectContext(
             t=state.t,
             p_WB_W=state.p_WB_W,
@@ -117,29 +117,29 @@ class Model:
             omega_dot=omega_dot,
         )
 
-    def thrust_factors(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
-        """(thrust factor, drag-torque factor), each (B, N): the product of every multiplicative effect."""
-        thrust_factor = np.ones_like(ctx.omega)
-        torque_factor = np.ones_like(ctx.omega)
-        for effect in self._acting["rotor_thrust_factor"]:
-            factor = evaluate(effect, "rotor_thrust_factor", ctx)
-            thrust_factor = thrust_factor * factor
-            if effect.scales_rotor_torque:
-                torque_factor = torque_factor * factor
-        return thrust_factor, torque_factor
+    def rotor_loads(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
+        """Per-rotor thrust [N] and drag-torque magnitude [N m], each (B, N), every rotor effect included.
 
-    def rotor_thrusts(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray]:
-        """Per-rotor thrust [N] (B, N) and the drag-torque factor (B, N)."""
-        thrust = self.airframe.k_f_N_s2 * ctx.omega**2
+        Thrust: (k_f omega^2 + terms) x factors; drag torque: (k_t omega^2 + terms) x the factors that scale
+        the rotor torque too (a damaged propeller loses both).
+        """
+        omega_squared = ctx.omega**2
+        thrust = self.airframe.k_f_N_s2 * omega_squared
         for effect in self._acting["rotor_thrust_term"]:
             thrust = thrust + evaluate(effect, "rotor_thrust_term", ctx)
-        thrust_factor, torque_factor = self.thrust_factors(ctx)
-        return thrust * thrust_factor, torque_factor
+        drag_torque = self.airframe.k_t_N_m_s2 * omega_squared
+        for effect in self._acting["rotor_drag_torque_term"]:
+            drag_torque = drag_torque + evaluate(effect, "rotor_drag_torque_term", ctx)
+        for effect in self._acting["rotor_thrust_factor"]:
+            factor = evaluate(effect, "rotor_thrust_factor", ctx)
+            thrust = thrust * factor
+            if effect.scales_rotor_torque:
+                drag_torque = drag_torque * factor
+        return thrust, drag_torque
 
     def wrench(self, ctx: EffectContext) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Force in world (gravity excluded) [N], torque in body [N m], per-rotor thrust [N]."""
-        thrust, torque_factor = self.rotor_thrusts(ctx)
-        drag_torque = self.airframe.k_t_N_m_s2 * ctx.omega**2 * torque_factor
+        thrust, drag_torque = self.rotor_loads(ctx)
         rotors = rotor_wrench(self.airframe, thrust, drag_torque)
         total = rotors[:, 0]
         F_W = total[:, None] * ctx.e_z_W
