@@ -35,11 +35,10 @@ import numpy as np  # noqa: E402
 from multirotor_ros.ident.excitation import excitation_setpoints  # noqa: E402
 from multirotor_ros.ident.fit import fit_parameters  # noqa: E402
 from multirotor_ros.ident.identify import identify  # noqa: E402
-from multirotor_ros.ident.parameters import neutral_effect_spec  # noqa: E402
 from multirotor_ros.ident.samples import load_samples  # noqa: E402
 from multirotor_ros.io.flight_log import write_flight_log  # noqa: E402
 from multirotor_ros.model.airframe import load_airframe  # noqa: E402
-from multirotor_ros.model.effects import EFFECTS  # noqa: E402
+from multirotor_ros.model.effects import effect_class  # noqa: E402
 from multirotor_ros.model.model import Model  # noqa: E402
 from multirotor_ros.simulation.flight import simulate_flight  # noqa: E402
 
@@ -87,8 +86,13 @@ def main() -> int:
     print(f"window: {samples.t.size} samples, {samples.t[-1] - samples.t[0]:.1f} s", flush=True)
 
     def refit(effect_ids: list[str]) -> Callable[[], object]:
-        model = Model(airframe, [{"id": e, **neutral_effect_spec(e, airframe)} for e in effect_ids])
-        free = [("airframe", "k_f_N_s2")] + [(e, n) for e in effect_ids for n in EFFECTS[e].parameter_units]
+        n_rotors = airframe.n_rotors
+        model = Model(
+            airframe, [{"id": e, **effect_class(e).neutral_parameters(n_rotors)} for e in effect_ids]
+        )
+        free = [("airframe", "k_f_N_s2")] + [
+            (e, p.name) for e in effect_ids for p in effect_class(e).parameter_list(n_rotors)
+        ]
 
         def run() -> object:
             samples.design_cache.clear()

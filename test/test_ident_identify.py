@@ -187,3 +187,19 @@ def test_a_log_too_short_is_an_error_saying_what_is_missing():
 def test_rotational_effects_are_refused_with_the_reason():
     with pytest.raises(ValueError, match="rotational effects are not identified"):
         identify(X8, flight("x8_octorotor", duration_s=8.0, seed=5), ["gyroscopic"])
+
+
+def test_a_weak_rotor_is_named_not_identifiable_rather_than_fitted_from_the_force_alone():
+    """rotor_effectiveness: each rotor's share of the thrust shows in the torque balance, not in the force.
+
+    Fitted from the force alone, e_1 ... e_8 come out confident and wrong (the loss of rotor 3 spread over
+    its neighbours, differently from log to log), so the identifier names every e_i and says why.
+    """
+    weak_rotor = {f"e_{i}": 0.8 if i == 3 else 1.0 for i in range(1, 9)}
+    log = flight("x8_octorotor", (effect("rotor_effectiveness", **weak_rotor),), duration_s=40.0, seed=7)
+    result = identify(X8, log, ["rotor_effectiveness"])
+    for i in range(1, 9):
+        assert result.parameters[f"e_{i}"] is None
+        assert "torque balance" in result.not_identifiable[f"e_{i}"]
+    # k_f takes the mean loss of thrust: one rotor of eight at 80 %.
+    assert result.parameters["k_f_N_s2"] == pytest.approx(0.975 * X8.k_f_N_s2, rel=0.01)

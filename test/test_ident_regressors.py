@@ -7,7 +7,7 @@ import pytest
 from scipy.signal import savgol_filter
 
 from multirotor_ros.ident.fit import newey_west, solve_bounded
-from multirotor_ros.ident.parameters import neutral_effect_spec, parameter_spec
+from multirotor_ros.ident.parameters import parameter_facts
 from multirotor_ros.ident.regressors import ForceRegressor, linear_refs, parameter_value, with_values
 from multirotor_ros.ident.samples import MeasurementChain, lag_filter
 from multirotor_ros.io.derive import SavitzkyGolay
@@ -38,6 +38,7 @@ TRUE_VALUES = {
     "motor": 2.0,
     "effectiveness": 0.6,
     "t_fault_s": 0.05,
+    **{f"e_{i}": 1.0 - 0.05 * i for i in range(1, 9)},
 }
 
 
@@ -101,19 +102,20 @@ def test_columns_match_the_formulas_of_effects_md_on_a_level_vehicle():
 @pytest.mark.parametrize("effect_id", TRANSLATIONAL_EFFECTS)
 def test_y_equals_phi_theta_for_data_made_by_the_model(airframe, effect_id):
     """The contract of ForceRegressor for every translational effect: the model's own force is reproduced."""
-    if effect_id == "coaxial_loss" and not airframe.lower_rotor_mask.any():
-        pytest.skip("no coaxial rotors")
-    cls = EFFECTS[effect_id]
-    truth = Model(airframe, [{"id": effect_id, **{k: TRUE_VALUES[k] for k in cls.parameter_units}}])
+    why_not = EFFECTS[effect_id].not_applicable(airframe)
+    if why_not is not None:
+        pytest.skip(why_not)
+    parameters = EFFECTS[effect_id].parameter_list(airframe.n_rotors)
+    truth = Model(airframe, [{"id": effect_id, **{p.name: TRUE_VALUES[p.name] for p in parameters}}])
     s = batch(airframe)
     ctx = truth.context(StateBatch(s["t"], s["p"], s["v"], s["R"], s["w"], s["omega"]))
     a_true = truth.accelerations(ctx)[0]
-    refs = linear_refs(truth, [effect_id], include_k_f=True)
+    # k_f times a thrust factor on every rotor is one product: with both free the data fix only that, so the
+    # per-rotor effect is regressed with k_f known.
+    refs = linear_refs(truth, [effect_id], include_k_f=EFFECTS[effect_id].PER_ROTOR_PARAMETER is None)
     if effect_id == "actuator_fault":
         refs.append(("actuator_fault", "effectiveness"))
-    start = with_values(
-        truth, {r: parameter_spec(r, airframe).neutral if r[0] != "airframe" else 1e-5 for r in refs}
-    )
+    start = with_values(truth, {r: parameter_facts(r).neutral if r[0] != "airframe" else 1e-5 for r in refs})
     regressor = ForceRegressor(start, refs)
     theta = np.array([parameter_value(truth, r) for r in refs])
     y, Phi = regressor(ctx, a_true)
@@ -142,7 +144,7 @@ def test_neutral_effects_change_nothing():
     for effect_id in TRANSLATIONAL_EFFECTS:
         if effect_id == "motor_lag":
             continue  # acts on the rotor speeds themselves: see test_lag_filter_*
-        model = Model(X8, [{"id": effect_id, **neutral_effect_spec(effect_id, X8)}])
+        model = Model(X8, [{"id": effect_id, **EFFECTS[effect_id].neutral_parameters(X8.n_rotors)}])
         np.testing.assert_allclose(model.wrench(ctx)[0], reference, rtol=1e-9, err_msg=effect_id)
 
 

@@ -54,9 +54,9 @@ Progress = Callable[[str], None]
 class RotorOnsetSearch:
     """The parameters of an effect that acts on one rotor from an onset on, searched together.
 
-    An effect with a discrete parameter (a rotor number) is searched exhaustively over rotor x onset
-    sample: its other non-linear parameter is the onset time [s], and the one that is linear once both are
-    fixed is its factor on that rotor's thrust, which the search solves exactly through suffix sums.
+    An effect with a discrete parameter (a rotor number) and an onset time is searched exhaustively over
+    rotor x onset sample; its parameter that is linear once both are fixed is its factor on that rotor's
+    thrust, which the search solves exactly through suffix sums.
     """
 
     rotor: ParameterRef
@@ -70,7 +70,7 @@ class RotorOnsetSearch:
         rotors = [p.name for p in parameters if p.discrete]
         if not rotors:
             return None
-        onsets = [p.name for p in parameters if not (p.linear or p.linear_given_others or p.discrete)]
+        onsets = [p.name for p in parameters if p.onset_time]
         factors = [p.name for p in parameters if p.linear_given_others]
         if len(rotors) != 1 or len(onsets) != 1 or len(factors) != 1:
             raise ValueError(
@@ -236,7 +236,8 @@ def solve_bounded(A: FloatArray, b: FloatArray, lower: FloatArray, upper: FloatA
     lo = np.where(np.isfinite(lower), lower * scale, -np.inf)
     hi = np.where(np.isfinite(upper), upper * scale, np.inf)
     result = lsq_linear(R, c, bounds=(lo, hi), method="bvls" if n_par <= 10 else "trf")
-    return result.x / scale
+    # Unscaling can put a value at a bound a rounding error outside it, where an effect refuses it.
+    return np.clip(result.x / scale, lower, upper)
 
 
 class LinearSolver:
@@ -750,6 +751,33 @@ def acceleration_residual(samples: FlightSamples, model: Model) -> FloatArray:
     return design.y / np.asarray(model.mass_kg, dtype=float)
 
 
+def rotor_shares_unseen(free: Sequence[ParameterRef], n_rotors: int) -> dict[ParameterRef, str]:
+    """The free parameters the force equation cannot tell apart, each with the reason.
+
+    A thrust factor given per rotor (rotor_effectiveness's e_1 ... e_N) changes the force only through the
+    sum of the rotors' thrusts, sum e_i k_f omega_i^2, along one axis: in closed-loop flight the rotor
+    speeds move together, so the log tells the rotors' shares apart only by their small differences, and
+    a fit returns confident values that are wrong (a weak rotor's loss spread over its neighbours). Each
+    rotor's share shows in the torque balance, which this equation-error fit does not use: such factors
+    are held at their starting values and named.
+    """
+    unseen: dict[ParameterRef, str] = {}
+    for effect_id in dict.fromkeys(effect_id for effect_id, _ in free if effect_id != AIRFRAME):
+        cls = effect_class(effect_id)
+        per_rotor = cls.PER_ROTOR_PARAMETER
+        if per_rotor is None or "rotor_thrust_factor" not in cls.formulas():
+            continue
+        for i in range(1, n_rotors + 1):
+            ref = (effect_id, f"{per_rotor.name}_{i}")
+            if ref in free:
+                unseen[ref] = (
+                    f"{ref[1]} is not identifiable from the translational motion (a thrust factor per rotor "
+                    "changes the force only through the sum of the rotors' thrusts; each rotor's share shows "
+                    "in the torque balance, which this fit does not use)"
+                )
+    return unseen
+
+
 def fit_parameters(
     samples: FlightSamples,
     model: Model,
@@ -767,6 +795,10 @@ def fit_parameters(
     """
     held = dict(held or {})
     verdicts: dict[ParameterRef, str] = {}
+    for ref, why in rotor_shares_unseen(free, model.n_rotors).items():
+        if ref not in held:
+            held[ref] = parameter_value(model, ref)
+            verdicts[ref] = why
     notes: list[str] = []
     while True:
         fitter = Fitter(samples, model, free, rows=rows, progress=progress, held=held, weights=weights)

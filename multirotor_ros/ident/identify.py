@@ -31,11 +31,11 @@ import yaml
 
 from multirotor_ros.ident.fit import FitResult, acceleration_residual, fit_parameters, nuisance_estimate
 from multirotor_ros.ident.metrics import AXES, horizon_position_error, model_acceleration, per_axis
-from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef, neutral_effect_spec, parameter_spec
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, FittedParameter, ParameterRef, parameter_facts
 from multirotor_ros.ident.samples import FlightSamples, load_samples
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
-from multirotor_ros.model.effects import EFFECTS, make_effect
+from multirotor_ros.model.effects import EFFECTS, effect_class, make_effect
 from multirotor_ros.model.model import Model
 
 Progress = Callable[[str], None]
@@ -89,9 +89,10 @@ class IdentificationResult:
 
     def to_json(self) -> dict[str, Any]:
         """identified.json as a dict (interfaces.md: parameters, std, mse_before, mse_after first)."""
+        discrete = {ref[1] for ref in self.fit.free if parameter_facts(ref).discrete}
         return {
             "parameters": {
-                k: (int(round(v)) if k == "motor" and v is not None else v)
+                k: (int(round(v)) if k in discrete and v is not None else v)
                 for k, v in self.parameters.items()
             },
             "std": self.std,
@@ -154,12 +155,13 @@ class IdentificationResult:
         document["k_f_N_s2"] = float(self.model_after.airframe.k_f_N_s2)
         effects = []
         for effect in self.model_after.effects:
-            values = {name: float(v) for name, v in effect.parameters.items()}
-            neutral = neutral_effect_spec(effect.id, self.airframe)
+            values: dict[str, float | int] = {name: float(v) for name, v in effect.parameters.items()}
+            neutral = effect.neutral_parameters(self.airframe.n_rotors)
             if all(self.parameters.get(name) is None for name in values) and values == neutral:
                 continue  # nothing identified: an effect at "does nothing" only confuses a reader
-            if effect.id == "actuator_fault":
-                values["motor"] = int(round(values["motor"]))
+            for name, value in values.items():
+                if effect.parameter(name).discrete:
+                    values[name] = int(round(value))
             effects.append({"id": effect.id, **values})
         document["effects"] = effects
         return document
@@ -235,9 +237,8 @@ class IdentificationResult:
         from multirotor_ros.ident.plots import plot_binned
 
         samples, model = self.samples, self.model_after
-        lag = model.effect("motor_lag")
-        omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
-        ctx = samples.context(model, omega)
+        ctx = samples.model_context(model)
+        omega = ctx.omega
         force, _, thrust = model.wrench(ctx)
         e_z = ctx.e_z_W
         needed = np.asarray(model.mass_kg, dtype=float) * (
@@ -325,10 +326,13 @@ def identify(
     if progress is not None:
         progress(f"{samples.source}: {np.count_nonzero(samples.valid)} usable samples of {samples.t.size}")
     configured = {spec["id"]: spec for spec in airframe.effect_specs()}
-    start = [make_effect(configured.get(e) or {"id": e, **neutral_effect_spec(e, airframe)}) for e in effects]
+    start = [
+        make_effect(configured.get(e) or {"id": e, **effect_class(e).neutral_parameters(airframe.n_rotors)})
+        for e in effects
+    ]
     model_before = Model(airframe, start)
     free: list[ParameterRef] = [(AIRFRAME, K_F)] if fit_k_f else []
-    free += [(e, name) for e in effects for name in EFFECTS[e].parameter_units]
+    free += [(e, p.name) for e in effects for p in effect_class(e).parameter_list(airframe.n_rotors)]
     fit = fit_parameters(samples, model_before, free, progress=progress)
     model_after = fit.model
 
@@ -340,7 +344,7 @@ def identify(
         name = ref[1]
         value = fit.values[ref]
         why = fit.not_identifiable.get(ref)
-        spec = parameter_spec(ref, airframe)
+        fitted = FittedParameter.of(ref, airframe)
         if why is not None:
             parameters[name] = None
             std[name] = None
@@ -350,10 +354,15 @@ def identify(
             parameters[name] = value
             std[name] = fit.std.get(ref)
             sd = std[name]
-            if sd is not None and not spec.discrete and abs(value - spec.neutral) < 2 * sd and name != K_F:
+            if (
+                sd is not None
+                and not fitted.facts.discrete
+                and abs(value - fitted.neutral) < 2 * sd
+                and name != K_F
+            ):
                 fit.notes.append(
                     f"{name} = {value:.4g} +/- {sd:.2g} is not significantly different from "
-                    f"{spec.neutral:g} (no effect)"
+                    f"{fitted.neutral:g} (no effect)"
                 )
     warnings = list(samples.warnings) + [f"{name}: {why}" for name, why in not_identifiable.items()]
     nuisance = _nuisance_values(samples, model_after)

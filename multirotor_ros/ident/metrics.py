@@ -28,9 +28,7 @@ def per_axis(values: FloatArray) -> dict[str, float]:
 
 def model_acceleration(samples: FlightSamples, model: Model) -> FloatArray:
     """(T, 3) world acceleration [m/s^2] the model gives along the log (no measurement chain)."""
-    lag = model.effect("motor_lag")
-    omega = samples.speeds_for_lag(float(lag["tau_s"])) if lag is not None else samples.omega
-    return model.accelerations(samples.context(model, omega))[0]
+    return model.accelerations(samples.model_context(model))[0]
 
 
 def horizon_windows(samples: FlightSamples, horizon_s: float) -> list[tuple[int, int]]:

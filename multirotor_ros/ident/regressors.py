@@ -26,30 +26,40 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef
-from multirotor_ros.model.effects import EFFECTS, Effect, EffectContext
+from multirotor_ros.ident.parameters import AIRFRAME, K_F, ParameterRef, parameter_facts
+from multirotor_ros.model.effects import Effect, EffectContext, effect_class
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.model.state import StateBatch
 
-# Not linear in general, but linear once the others of their effect are fixed: the fault's effectiveness
-# multiplies the faulty rotor's thrust from the (fixed) onset on.
-CONDITIONALLY_LINEAR: frozenset[ParameterRef] = frozenset({("actuator_fault", "effectiveness")})
-# Parameters that scale thrust (a factor) rather than add to it: they make products with k_f, k_f1, k_v.
-_FACTOR_PARAMETERS: frozenset[ParameterRef] = frozenset(
-    {("coaxial_loss", "eta_lower"), ("actuator_fault", "effectiveness")}
-)
-_THRUST_TERM_PARAMETERS: frozenset[ParameterRef] = frozenset(
-    {(AIRFRAME, K_F), ("thrust_speed_dependence", "k_f1"), ("inflow_thrust_loss", "k_v")}
-)
+
+def is_regressed(ref: ParameterRef) -> bool:
+    """Whether a parameter is solved by least squares rather than searched.
+
+    k_f, a linear parameter, or one that is linear once the other parameters of its effect are fixed
+    (a fault's effectiveness, its rotor and onset chosen).
+    """
+    facts = parameter_facts(ref)
+    return facts.linear or facts.linear_given_others
+
+
+def _is_thrust_factor(ref: ParameterRef) -> bool:
+    """A parameter of an effect that scales the rotors' thrust (a factor makes products with thrust terms)."""
+    return ref[0] != AIRFRAME and "rotor_thrust_factor" in effect_class(ref[0]).formulas()
+
+
+def _is_thrust_term(ref: ParameterRef) -> bool:
+    """k_f, or a linear parameter of an effect that adds to the rotors' thrust."""
+    if ref[0] == AIRFRAME:
+        return True
+    return "rotor_thrust_term" in effect_class(ref[0]).formulas() and parameter_facts(ref).linear
 
 
 def parameter_value(model: Model, ref: ParameterRef) -> float:
     """Current value of a parameter in ``model`` (scalar parameters only)."""
     effect_id, name = ref
     if effect_id == AIRFRAME:
-        if name != K_F:
-            raise ValueError(f"the only airframe parameter fitted is {K_F}, not {name!r}")
+        parameter_facts(ref)  # refuses any airframe parameter but k_f
         return float(model.airframe.k_f_N_s2)
     effect = model.effect(effect_id)
     if effect is None:
@@ -82,13 +92,14 @@ def with_values(model: Model, values: Mapping[ParameterRef, float]) -> Model:
 
 
 def linear_refs(model: Model, effect_ids: Iterable[str], include_k_f: bool = False) -> list[ParameterRef]:
-    """The linearly entering parameters of these effects (effects.md order), k_f first if asked."""
+    """The linearly entering parameters of these effects (effects.md order), k_f first if asked.
+
+    A per-rotor parameter is listed once per rotor of the model's airframe (e_1 ... e_N).
+    """
     refs: list[ParameterRef] = [(AIRFRAME, K_F)] if include_k_f else []
     for effect_id in effect_ids:
-        if effect_id not in EFFECTS:
-            raise ValueError(f"unknown effect {effect_id!r}; known: {', '.join(EFFECTS)}")
-        cls = EFFECTS[effect_id]
-        refs += [(effect_id, name) for name in cls.parameter_units if name not in cls.nonlinear_parameters]
+        parameters = effect_class(effect_id).parameter_list(model.n_rotors)
+        refs += [(effect_id, parameter.name) for parameter in parameters if parameter.linear]
     return refs
 
 
@@ -110,9 +121,8 @@ def _difference_step(model: Model, ref: ParameterRef, value: float) -> float:
 
 
 def is_bilinear(refs: Sequence[ParameterRef]) -> bool:
-    """Whether ``refs`` hold a thrust factor (eta_lower, effectiveness) and a thrust term (k_f, k_f1, k_v)."""
-    ref_set = set(refs)
-    return bool(ref_set & _FACTOR_PARAMETERS) and bool(ref_set & _THRUST_TERM_PARAMETERS)
+    """Whether ``refs`` hold a thrust factor (eta_lower, e_i, ...) and a thrust term (k_f, k_f1, k_v, ...)."""
+    return any(_is_thrust_factor(r) for r in refs) and any(_is_thrust_term(r) for r in refs)
 
 
 class ForceRegressor:
@@ -128,14 +138,7 @@ class ForceRegressor:
         if duplicated:
             raise ValueError(f"parameter(s) listed twice: {duplicated}")
         for effect_id, name in refs:
-            if effect_id == AIRFRAME:
-                continue
-            cls = EFFECTS.get(effect_id)
-            if (
-                cls is not None
-                and name in cls.nonlinear_parameters
-                and (effect_id, name) not in CONDITIONALLY_LINEAR
-            ):
+            if not is_regressed((effect_id, name)):
                 raise ValueError(
                     f"{effect_id}.{name} enters the force non-linearly: it is searched, not regressed "
                     f"(see multirotor_ros.ident.fit)"

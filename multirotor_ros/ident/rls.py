@@ -36,10 +36,10 @@ from numpy.typing import ArrayLike
 # fit imports scipy: loaded with this module, so that a node pays for it at start and not at its
 # first refit, while samples pile up.
 from multirotor_ros.ident.fit import solve_bounded
-from multirotor_ros.ident.parameters import neutral_effect_spec, parameter_spec
+from multirotor_ros.ident.parameters import FittedParameter
 from multirotor_ros.ident.regressors import ForceRegressor, linear_refs, parameter_value, with_values
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.effects import EFFECTS
+from multirotor_ros.model.effects import effect_class
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.model.state import StateBatch
@@ -411,33 +411,30 @@ class OnlineIdentifier:
         own = {spec["id"]: spec for spec in airframe.effect_specs()}
         specs = []
         for effect_id in effect_ids:
-            if effect_id not in EFFECTS:
-                raise ValueError(f"unknown effect {effect_id!r}; known: {', '.join(EFFECTS)}")
-            cls = EFFECTS[effect_id]
-            if not [n for n in cls.parameter_units if n not in cls.nonlinear_parameters]:
+            cls = effect_class(effect_id)
+            parameters = cls.parameter_list(airframe.n_rotors)
+            if not any(p.linear for p in parameters):
                 raise ValueError(
                     f"effect {effect_id!r} has no parameter that enters the force linearly "
-                    f"({', '.join(cls.parameter_units)}): the online identifier cannot fit it; "
+                    f"({', '.join(p.name for p in parameters)}): the online identifier cannot fit it; "
                     "use `multirotor identify` on a log"
                 )
-            specs.append(own.get(effect_id, {"id": effect_id, **neutral_effect_spec(effect_id, airframe)}))
+            specs.append(own.get(effect_id, {"id": effect_id, **cls.neutral_parameters(airframe.n_rotors)}))
         self.effect_ids = tuple(effect_ids)
         self.base_model = Model(airframe, specs)
         self.refs = linear_refs(self.base_model, self.effect_ids, include_k_f)
         if not self.refs:
             raise ValueError("nothing to identify: give at least one effect or include k_f")
         self.regressor = ForceRegressor(self.base_model, self.refs)
-        parameter_specs = [parameter_spec(r, airframe) for r in self.refs]
-        self.lower = np.array([s.lower for s in parameter_specs])
-        self.upper = np.array([s.upper for s in parameter_specs])
-        self.neutral = np.array([s.neutral for s in parameter_specs])
-        self.scale = np.array([s.scale for s in parameter_specs])
+        fitted = [FittedParameter.of(r, airframe) for r in self.refs]
+        self.lower = np.array([f.lower for f in fitted])
+        self.upper = np.array([f.upper for f in fitted])
+        self.neutral = np.array([f.neutral for f in fitted])
+        self.scale = np.array([f.scale for f in fitted])
         theta0 = np.array([parameter_value(self.base_model, r) for r in self.refs])
         # Prior: the configured value, uncertain by twice the larger of itself and the parameter's
         # "size that matters"; that also bounds how far noise can move a parameter the flight does not excite.
-        prior_std = np.array(
-            [2.0 * max(s.scale, abs(v)) for s, v in zip(parameter_specs, theta0, strict=True)]
-        )
+        prior_std = np.array([2.0 * max(f.scale, abs(v)) for f, v in zip(fitted, theta0, strict=True)])
         self.rls = RecursiveLeastSquares(
             [f"{e}.{n}" for e, n in self.refs], self.settings.forgetting, theta0, prior_std
         )

@@ -32,21 +32,14 @@ import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.signal import lfilter, savgol_filter
 
+from multirotor_ros.ident.settings import FitSettings
 from multirotor_ros.io.derive import SavitzkyGolay, derive_motion, rotor_speeds_with_note
 from multirotor_ros.io.flight_log import FlightLog, FlightLogError, read_flight_log
 from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
-from multirotor_ros.model.effects import EffectContext
+from multirotor_ros.model.effects import EffectContext, hover_speed_estimate
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix
 from multirotor_ros.model.state import StateBatch
-
-# A time step longer than this many median steps is a gap: nothing is derived or integrated across it.
-GAP_FACTOR = 2.5
-MIN_USABLE_SAMPLES = 50
-MIN_ROTOR_HEIGHT_M = 0.02
-# Thrust / needed force outside this range: the log is not of this airframe (or not in rad/s).
-MISMATCH_RATIO = (0.5, 2.0)
-PLAUSIBLE_RATIO = (0.8, 1.25)
 
 
 class LogMismatch(ValueError):
@@ -139,6 +132,8 @@ class FlightSamples:
     # Columns (T, 3, K) of nuisance parameters fitted alongside every model (see accelerometer_bias_columns).
     nuisance: FloatArray | None = None
     nuisance_names: tuple[str, ...] = ()
+    # The thresholds the log was prepared with; its fits use them too.
+    settings: FitSettings = field(default_factory=FitSettings)
     # Regression designs by model, filled by multirotor_ros.ident.fit.build_design.
     design_cache: dict[tuple, Any] = field(default_factory=dict, repr=False)
 
@@ -157,22 +152,31 @@ class FlightSamples:
         """Time covered by usable samples [s] (their count times the median interval)."""
         return float(np.count_nonzero(self.valid) * self.dt)
 
-    def context(
-        self, model: Model, omega: FloatArray | None = None, rows: FloatArray | None = None
-    ) -> EffectContext:
-        """The model's effect context over all rows (or ``rows``); ``omega`` replaces the logged speeds."""
+    def states(self, rows: FloatArray | slice | None = None) -> StateBatch:
+        """The samples (all, or ``rows``) as states with their logged rotor speeds and accelerations."""
         index = slice(None) if rows is None else rows
-        speeds = self.omega if omega is None else omega
-        return model.context(
-            StateBatch(
-                self.t[index],
-                self.p_WB_W[index],
-                self.v_WB_W[index],
-                self.R_WB[index],
-                self.w_WB_B[index],
-                speeds[index],
-            )
+        return StateBatch(
+            self.t[index],
+            self.p_WB_W[index],
+            self.v_WB_W[index],
+            self.R_WB[index],
+            self.w_WB_B[index],
+            self.omega[index],
+            self.a_W[index],
         )
+
+    def thrust_speeds(self, model: Model) -> FloatArray:
+        """(T, N) rotor speeds that make thrust in ``model``.
+
+        The logged ones, lagged by the model's rotor time constant when it has one (motor_lag: the log
+        holds the speeds the ESCs were asked for).
+        """
+        tau_s = model.rotor_time_constant_s
+        return self.omega if tau_s is None else lag_filter(self.t, self.omega, float(tau_s), self.segments)
+
+    def model_context(self, model: Model) -> EffectContext:
+        """``model``'s effect context over every sample, with the rotor speeds that make its thrust."""
+        return model.context(self.states().with_omega(self.thrust_speeds(model)))
 
     def through_chain(self, values: FloatArray) -> FloatArray:
         """Model outputs (T, ...) as the log would show them (see :class:`MeasurementChain`)."""
@@ -191,12 +195,6 @@ class FlightSamples:
         self.nuisance = mass_kg * self.R_WB[:, :, :2]
         self.nuisance_names = ("accelerometer_bias_x_m_s2", "accelerometer_bias_y_m_s2")
         self.design_cache.clear()
-
-    def speeds_for_lag(self, tau_s: float | None) -> FloatArray:
-        """Rotor speeds that make thrust: the logged ones, or lagged by ``tau_s`` (motor_lag)."""
-        if tau_s is None:
-            return self.omega
-        return lag_filter(self.t, self.omega, tau_s, self.segments)
 
 
 def lag_filter(
@@ -234,10 +232,10 @@ def lag_filter(
     return out
 
 
-def _segments(mask: FloatArray, t: FloatArray, dt: float) -> list[tuple[int, int]]:
-    """Maximal runs of True in ``mask`` without a time gap inside."""
+def _segments(mask: FloatArray, t: FloatArray, dt: float, gap_factor: float) -> list[tuple[int, int]]:
+    """Maximal runs of True in ``mask`` without a time gap (a step above ``gap_factor`` dt) inside."""
     breaks = np.zeros(mask.size, dtype=bool)
-    breaks[1:] = np.diff(t) > GAP_FACTOR * dt
+    breaks[1:] = np.diff(t) > gap_factor * dt
     segments = []
     start = None
     for i, ok in enumerate(mask):
@@ -283,16 +281,60 @@ def load_samples(
     airframe: Airframe,
     filter: SavitzkyGolay | None = None,  # noqa: A002 - the name derive_motion uses
     check_thrust: bool = True,
+    settings: FitSettings | None = None,
 ) -> FlightSamples:
-    """Read (if a path) and prepare a log for identification with ``airframe`` (module docstring)."""
+    """Read (if a path) and prepare a log for identification with ``airframe`` (module docstring).
+
+    Four stages: read and check the log against the airframe, derive the motion it lacks, mark the
+    samples that may be fitted, and check that its thrust is of this airframe; each adds its notes.
+    """
+    settings = settings or FitSettings()
     flt = filter or SavitzkyGolay()
+    flight, source, read_warnings = _read_log(log, airframe, settings)
+    motion = _derive_motion(flight, airframe, flt, settings)
+    usable = _mark_usable(flight, airframe, motion, settings)
+    n_valid = int(np.count_nonzero(usable.valid))
+    if n_valid < settings.min_usable_samples:
+        raise NotEnoughData(
+            f"{source}: only {n_valid} usable samples (of {flight.t.size}); identification needs at least "
+            f"{settings.min_usable_samples} samples in flight with attitude, rotor speeds and motion measured"
+        )
+    thrust_notes, thrust_warnings = (
+        _check_thrust(airframe, motion, usable.valid, source, settings) if check_thrust else ([], [])
+    )
+    return FlightSamples(
+        t=flight.t,
+        p_WB_W=np.where(np.isfinite(motion.p_WB_W), motion.p_WB_W, 0.0),
+        v_WB_W=np.where(np.isfinite(motion.v_WB_W), motion.v_WB_W, 0.0),
+        a_W=np.where(np.isfinite(motion.a_W), motion.a_W, 0.0),
+        euler=np.where(np.isfinite(motion.euler), motion.euler, 0.0),
+        R_WB=motion.R_WB,
+        w_WB_B=motion.w_WB_B,
+        w_dot_B=motion.w_dot_B,
+        omega=np.where(np.isfinite(motion.omega), motion.omega, 0.0),
+        valid=usable.valid,
+        segments=usable.segments,
+        chain=motion.chain,
+        rate_chain=motion.rate_chain,
+        height_known=motion.height_known,
+        position_measured=motion.position_measured,
+        source=source,
+        notes=motion.notes + usable.notes + thrust_notes + [f"acceleration: {motion.chain.describe()}"],
+        warnings=read_warnings + usable.warnings + thrust_warnings,
+        settings=settings,
+    )
+
+
+def _read_log(
+    log: FlightLog | str | Path, airframe: Airframe, settings: FitSettings
+) -> tuple[FlightLog, str, list[str]]:
+    """The log (read if a path) checked against the airframe: (log, its name for messages, warnings)."""
     if isinstance(log, FlightLog):
         log.validate(airframe.n_rotors)
         flight = log
     else:
         flight = read_flight_log(log, airframe.n_rotors)
     source = str(flight.source_path) if flight.source_path else "<log>"
-    notes: list[str] = []
     warnings: list[str] = []
     if flight.n_rotors != airframe.n_rotors:
         raise FlightLogError(
@@ -305,23 +347,53 @@ def load_samples(
         warnings.append(f"the log says '# airframe: {named}' but it is analysed as {airframe.name}")
     t = flight.t
     if t.size < 3:
-        raise NotEnoughData(f"{source}: {t.size} samples; identification needs at least {MIN_USABLE_SAMPLES}")
+        raise NotEnoughData(
+            f"{source}: {t.size} samples; identification needs at least {settings.min_usable_samples}"
+        )
     dt = float(np.median(np.diff(t)))
-    gaps = np.flatnonzero(np.diff(t) > GAP_FACTOR * dt)
+    gaps = np.flatnonzero(np.diff(t) > settings.gap_factor * dt)
     if gaps.size:
         listed = ", ".join(f"{t[g]:.3f}-{t[g + 1]:.3f} s" for g in gaps[:5])
         warnings.append(
-            f"{gaps.size} gap(s) in time longer than {GAP_FACTOR:g} sample intervals ({listed}"
+            f"{gaps.size} gap(s) in time longer than {settings.gap_factor:g} sample intervals ({listed}"
             f"{', ...' if gaps.size > 5 else ''}): nothing is derived or integrated across them"
         )
+    return flight, source, warnings
 
+
+@dataclass
+class _Motion:
+    """Everything the log gives or lets derive of the motion, NaN where unknown, with how it was had."""
+
+    dt: float  # median sample interval [s]
+    p_WB_W: FloatArray
+    v_WB_W: FloatArray
+    a_W: FloatArray
+    euler: FloatArray
+    R_WB: FloatArray
+    w_WB_B: FloatArray  # 0 where unknown
+    w_dot_B: FloatArray
+    omega: FloatArray
+    inputs_known: FloatArray  # (T,) bool: attitude, rotor speeds, position and velocity all finite
+    chain: MeasurementChain
+    rate_chain: MeasurementChain
+    height_known: bool
+    position_measured: bool
+    notes: list[str]
+
+
+def _derive_motion(
+    flight: FlightLog, airframe: Airframe, flt: SavitzkyGolay, settings: FitSettings
+) -> _Motion:
+    """Position, velocity, acceleration, attitude, body rates and their derivative, rotor speeds."""
+    t = flight.t
+    dt = float(np.median(np.diff(t)))
     motion = derive_motion(flight, flt)
-    notes += [f"{group}: {note}" for group, note in motion.notes.items()]
+    notes = [f"{group}: {note}" for group, note in motion.notes.items()]
     omega, omega_note = rotor_speeds_with_note(flight, airframe.motor_map)
     notes.append(f"rotor speeds: {omega_note}")
     euler = flight.euler()
     order = 0 if flight.has_group("acceleration") else (1 if flight.has_group("velocity") else 2)
-    chain = MeasurementChain(order, flt, dt)
     position_measured = flight.has_group("position")
     p = np.array(motion.position, dtype=float)
     height_known = position_measured
@@ -335,16 +407,8 @@ def load_samples(
             "height: not measured (position integrated from velocity drifts): ground_effect cannot be seen"
         )
 
-    usable = np.all(np.isfinite(euler), axis=1) & np.all(np.isfinite(omega), axis=1)
-    usable &= np.all(np.isfinite(motion.velocity), axis=1) & np.all(np.isfinite(p), axis=1)
-    missing_inputs = ~usable
-    # Unwrap yaw before any differentiation: a jump of 2 pi is not a rotation.
-    euler_unwrapped = euler.copy()
-    finite_yaw = np.isfinite(euler[:, 2])
-    euler_unwrapped[finite_yaw, 2] = np.unwrap(euler[finite_yaw, 2])
-    R = euler_to_matrix(np.where(np.isfinite(euler), euler, 0.0))
-    input_segments = _segments(usable, t, dt)
-
+    inputs_known = np.all(np.isfinite(euler), axis=1) & np.all(np.isfinite(omega), axis=1)
+    inputs_known &= np.all(np.isfinite(motion.velocity), axis=1) & np.all(np.isfinite(p), axis=1)
     rates_cols = ("p", "q", "r")
     if all(c in flight.columns for c in rates_cols) and np.any(
         np.all(np.isfinite(np.column_stack([flight.columns[c] for c in rates_cols])), axis=1)
@@ -353,50 +417,64 @@ def load_samples(
         rate_order = 1
         notes.append("body rates: measured (p, q, r)")
     else:
+        # Unwrap yaw before differentiating: a jump of 2 pi is not a rotation.
+        euler_unwrapped = euler.copy()
+        finite_yaw = np.isfinite(euler[:, 2])
+        euler_unwrapped[finite_yaw, 2] = np.unwrap(euler[finite_yaw, 2])
+        input_segments = _segments(inputs_known, t, dt, settings.gap_factor)
         euler_dot = _smooth_derivative(t, euler_unwrapped, input_segments, flt, dt)
         w = np.einsum("tij,tj->ti", euler_rates_matrix(euler), euler_dot)
         rate_order = 2
         notes.append("body rates: derived from the Euler angles (Savitzky-Golay derivative)")
-    rate_segments = _segments(usable & np.all(np.isfinite(w), axis=1), t, dt)
+    rate_segments = _segments(inputs_known & np.all(np.isfinite(w), axis=1), t, dt, settings.gap_factor)
     w_dot = _smooth_derivative(t, np.where(np.isfinite(w), w, 0.0), rate_segments, flt, dt)
-    w = np.where(np.isfinite(w), w, 0.0)
+    return _Motion(
+        dt=dt,
+        p_WB_W=p,
+        v_WB_W=np.asarray(motion.velocity, dtype=float),
+        a_W=np.asarray(motion.acceleration, dtype=float),
+        euler=euler,
+        R_WB=euler_to_matrix(np.where(np.isfinite(euler), euler, 0.0)),
+        w_WB_B=np.where(np.isfinite(w), w, 0.0),
+        w_dot_B=w_dot,
+        omega=omega,
+        inputs_known=inputs_known,
+        chain=MeasurementChain(order, flt, dt),
+        rate_chain=MeasurementChain(rate_order, flt, dt),
+        height_known=height_known,
+        position_measured=position_measured,
+        notes=notes,
+    )
 
-    acceleration_ok = np.all(np.isfinite(motion.acceleration), axis=1)
-    valid = usable & acceleration_ok
-    segments = _segments(valid, t, dt)
+
+@dataclass
+class _Usable:
+    """The samples that may be fitted, the gap-free segments they form, and what was left out and why."""
+
+    valid: FloatArray  # (T,) bool
+    segments: list[tuple[int, int]]
+    notes: list[str]
+    warnings: list[str]
+
+
+def _mark_usable(flight: FlightLog, airframe: Airframe, motion: _Motion, settings: FitSettings) -> _Usable:
+    """Samples with every input and the acceleration known, away from segment ends and off the ground."""
+    t = flight.t
+    valid = motion.inputs_known & np.all(np.isfinite(motion.a_W), axis=1)
+    segments = _segments(valid, t, motion.dt, settings.gap_factor)
     # The filter's ends differ from its middle; the model side cannot reproduce what crossed a gap.
     trimmed = np.zeros_like(valid)
-    half = chain.half_window
+    half = motion.chain.half_window
     for start, stop in segments:
         if stop - start > 2 * half:
             trimmed[start + half : stop - half] = True
     edge_rows = valid & ~trimmed
     valid = trimmed
+    notes: list[str] = []
+    warnings: list[str] = []
 
-    contact = np.zeros_like(valid)
-    s_needed = np.array(motion.acceleration, dtype=float)
-    s_needed[:, 2] += GRAVITY_M_S2
-    thrust_nominal = airframe.k_f_N_s2 * np.sum(np.where(np.isfinite(omega), omega, 0.0) ** 2, axis=1)
-    weight = airframe.mass_kg * GRAVITY_M_S2
-    speed = np.linalg.norm(np.where(np.isfinite(motion.velocity), motion.velocity, 0.0), axis=1)
-    still = (speed < 0.05) & (np.abs(np.nan_to_num(motion.acceleration[:, 2])) < 0.5)
-    if "landed" in flight.columns:
-        # The flight stack's own landing detector knows better than any rule of thumb here.
-        landed = flight.columns["landed"]
-        contact |= np.isfinite(landed) & (landed > 0.5)
-        notes.append(f"ground contact: the log's landed column ({np.count_nonzero(contact)} samples landed)")
-    elif height_known:
-        rotor_height = p[:, 2:3] + np.einsum("tj,nj->tn", R[:, 2, :], airframe.rotor_positions_m)
-        lowest = np.nanmin(p[:, 2]) if np.any(np.isfinite(p[:, 2])) else np.inf
-        # Rotors within 2 cm of the ground (landing gear may touch), or resting at the lowest height with
-        # too little thrust to fly.
-        contact |= np.nan_to_num(np.min(rotor_height, axis=1), nan=np.inf) < MIN_ROTOR_HEIGHT_M
-        contact |= (
-            still & (thrust_nominal < 0.85 * weight) & (np.nan_to_num(p[:, 2], nan=np.inf) < lowest + 0.05)
-        )
-    else:
-        # Without height, only thrust far below the weight while still says "on the ground".
-        contact |= still & (thrust_nominal < 0.5 * weight)
+    contact, contact_note = _ground_contact(flight, airframe, motion, settings)
+    notes += contact_note
     if np.any(contact & valid):
         warnings.append(
             f"{np.count_nonzero(contact & valid)} samples with the vehicle on the ground are not fitted "
@@ -404,6 +482,7 @@ def load_samples(
         )
     valid &= ~contact
 
+    missing_inputs = ~motion.inputs_known
     if np.any(missing_inputs):
         share = np.count_nonzero(missing_inputs) / t.size
         warnings.append(
@@ -411,69 +490,84 @@ def load_samples(
             "position or "
             f"velocity and are not used: {_describe_rows(t, missing_inputs)}"
         )
-    if np.any(edge_rows) and chain.order > 0:
+    if np.any(edge_rows) and motion.chain.order > 0:
         notes.append(
             f"{np.count_nonzero(edge_rows)} samples within half a filter window of a segment end are not used"
         )
-    n_valid = int(np.count_nonzero(valid))
-    if n_valid < MIN_USABLE_SAMPLES:
-        raise NotEnoughData(
-            f"{source}: only {n_valid} usable samples (of {t.size}); identification needs at least "
-            f"{MIN_USABLE_SAMPLES} samples in flight with attitude, rotor speeds and motion measured"
-        )
+    return _Usable(valid, segments, notes, warnings)
 
-    if check_thrust:
-        ratio = _thrust_ratio(airframe, omega, s_needed, valid)
-        if not math.isfinite(ratio):
-            raise NotEnoughData(
-                f"{source}: no usable sample in flight (the needed force is never near the weight)"
-            )
-        notes.append(
-            f"thrust check: k_f sum(omega^2) / (m |a + g|) = {ratio:.3f} (median over usable samples)"
-        )
-        if not MISMATCH_RATIO[0] <= ratio <= MISMATCH_RATIO[1]:
-            hint = " Wrong airframe, rotor channels or motor map, or rotor speeds not in rad/s."
-            if 0.6 * (30 / math.pi) ** 2 <= ratio <= 1.6 * (30 / math.pi) ** 2:
-                hint = " The rotor speeds look like rpm: the log must give rad/s (rpm * pi / 30)."
-            elif 0.6 * (2 * math.pi) ** -2 <= ratio <= 1.6 * (2 * math.pi) ** -2:
-                hint += " (A ratio near 1/(2 pi)^2 = 0.025 is what rev/s instead of rad/s would give.)"
-            hover = math.sqrt(airframe.mass_kg * GRAVITY_M_S2 / (airframe.n_rotors * airframe.k_f_N_s2))
-            median_speed = float(np.median(omega[valid]))
-            raise LogMismatch(
-                f"{source}: the log does not match airframe {airframe.name}: with k_f = "
-                f"{airframe.k_f_N_s2:g} "
-                f"N s^2/rad^2 and m = {airframe.mass_kg:g} kg the logged rotor speeds (median "
-                f"{median_speed:.0f} "
-                f"rad/s; hovering needs about {hover:.0f}) give {ratio:.2f} times the force the measured "
-                "motion "
-                f"needs (a matching log gives about 1).{hint}"
-            )
-        if not PLAUSIBLE_RATIO[0] <= ratio <= PLAUSIBLE_RATIO[1]:
-            warnings.append(
-                f"the airframe's k_f and mass give {ratio:.2f} times the force the measured motion needs: "
-                f"k_f, the mass or the motor map of {airframe.name} is off for this vehicle"
-            )
 
-    return FlightSamples(
-        t=t,
-        p_WB_W=np.where(np.isfinite(p), p, 0.0),
-        v_WB_W=np.where(np.isfinite(motion.velocity), motion.velocity, 0.0),
-        a_W=np.where(np.isfinite(motion.acceleration), motion.acceleration, 0.0),
-        euler=np.where(np.isfinite(euler), euler, 0.0),
-        R_WB=R,
-        w_WB_B=w,
-        w_dot_B=w_dot,
-        omega=np.where(np.isfinite(omega), omega, 0.0),
-        valid=valid,
-        segments=segments,
-        chain=chain,
-        rate_chain=MeasurementChain(rate_order, flt, dt),
-        height_known=height_known,
-        position_measured=position_measured,
-        source=source,
-        notes=notes + [f"acceleration: {chain.describe()}"],
-        warnings=warnings,
+def _ground_contact(
+    flight: FlightLog, airframe: Airframe, motion: _Motion, settings: FitSettings
+) -> tuple[FloatArray, list[str]]:
+    """(T,) bool: samples where the vehicle may touch the ground, and a note on how that was decided."""
+    p = motion.p_WB_W
+    acceleration = motion.a_W
+    thrust_nominal = airframe.k_f_N_s2 * np.sum(
+        np.where(np.isfinite(motion.omega), motion.omega, 0.0) ** 2, axis=1
     )
+    weight = airframe.mass_kg * GRAVITY_M_S2
+    speed = np.linalg.norm(np.where(np.isfinite(motion.v_WB_W), motion.v_WB_W, 0.0), axis=1)
+    still = (speed < 0.05) & (np.abs(np.nan_to_num(acceleration[:, 2])) < 0.5)
+    if "landed" in flight.columns:
+        # The flight stack's own landing detector knows better than any rule of thumb here.
+        landed = flight.columns["landed"]
+        contact = np.isfinite(landed) & (landed > 0.5)
+        return contact, [
+            f"ground contact: the log's landed column ({np.count_nonzero(contact)} samples landed)"
+        ]
+    if motion.height_known:
+        rotor_height = p[:, 2:3] + np.einsum("tj,nj->tn", motion.R_WB[:, 2, :], airframe.rotor_positions_m)
+        lowest = np.nanmin(p[:, 2]) if np.any(np.isfinite(p[:, 2])) else np.inf
+        # Rotors so close to the ground that landing gear may touch, or resting at the lowest height with
+        # too little thrust to fly.
+        contact = np.nan_to_num(np.min(rotor_height, axis=1), nan=np.inf) < settings.min_rotor_height_m
+        contact |= (
+            still & (thrust_nominal < 0.85 * weight) & (np.nan_to_num(p[:, 2], nan=np.inf) < lowest + 0.05)
+        )
+        return contact, []
+    # Without height, only thrust far below the weight while still says "on the ground".
+    return still & (thrust_nominal < 0.5 * weight), []
+
+
+def _check_thrust(
+    airframe: Airframe, motion: _Motion, valid: FloatArray, source: str, settings: FitSettings
+) -> tuple[list[str], list[str]]:
+    """(notes, warnings) of the thrust check; LogMismatch when the log cannot be of this airframe."""
+    needed_specific_force = motion.a_W.copy()
+    needed_specific_force[:, 2] += GRAVITY_M_S2
+    ratio = _thrust_ratio(airframe, motion.omega, needed_specific_force, valid)
+    if not math.isfinite(ratio):
+        raise NotEnoughData(
+            f"{source}: no usable sample in flight (the needed force is never near the weight)"
+        )
+    notes = [f"thrust check: k_f sum(omega^2) / (m |a + g|) = {ratio:.3f} (median over usable samples)"]
+    low, high = settings.mismatch_ratio
+    if not low <= ratio <= high:
+        hint = " Wrong airframe, rotor channels or motor map, or rotor speeds not in rad/s."
+        if 0.6 * (30 / math.pi) ** 2 <= ratio <= 1.6 * (30 / math.pi) ** 2:
+            hint = " The rotor speeds look like rpm: the log must give rad/s (rpm * pi / 30)."
+        elif 0.6 * (2 * math.pi) ** -2 <= ratio <= 1.6 * (2 * math.pi) ** -2:
+            hint += " (A ratio near 1/(2 pi)^2 = 0.025 is what rev/s instead of rad/s would give.)"
+        hover = hover_speed_estimate(airframe)
+        median_speed = float(np.median(motion.omega[valid]))
+        raise LogMismatch(
+            f"{source}: the log does not match airframe {airframe.name}: with k_f = "
+            f"{airframe.k_f_N_s2:g} "
+            f"N s^2/rad^2 and m = {airframe.mass_kg:g} kg the logged rotor speeds (median "
+            f"{median_speed:.0f} "
+            f"rad/s; hovering needs about {hover:.0f}) give {ratio:.2f} times the force the measured "
+            "motion "
+            f"needs (a matching log gives about 1).{hint}"
+        )
+    warnings = []
+    low, high = settings.plausible_ratio
+    if not low <= ratio <= high:
+        warnings.append(
+            f"the airframe's k_f and mass give {ratio:.2f} times the force the measured motion needs: "
+            f"k_f, the mass or the motor map of {airframe.name} is off for this vehicle"
+        )
+    return notes, warnings
 
 
 def _thrust_ratio(airframe: Airframe, omega: FloatArray, s_needed: FloatArray, valid: FloatArray) -> float:
@@ -486,9 +580,10 @@ def _thrust_ratio(airframe: Airframe, omega: FloatArray, s_needed: FloatArray, v
 
 
 def describe_range(values: FloatArray, unit: str, fmt: Callable[[float], str] = lambda v: f"{v:.3g}") -> str:
-    """'from a to b unit' (5th to 95th percentile) for messages about excitation."""
+    """'a to b unit' (5th to 95th percentile; one number if they agree) for messages about excitation."""
     finite = values[np.isfinite(values)]
     if finite.size == 0:
         return "not measured"
     lo, hi = np.percentile(finite, [5, 95])
-    return f"{fmt(lo)} to {fmt(hi)} {unit}"
+    text = fmt(lo) if lo == hi else f"{fmt(lo)} to {fmt(hi)}"
+    return f"{text} {unit}".rstrip()

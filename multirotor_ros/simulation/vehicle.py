@@ -23,7 +23,14 @@ from numpy.typing import ArrayLike
 
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.effects import ActuatorFault, Effect, MotorLag, make_effect
+from multirotor_ros.model.effects import (
+    ActuatorFault,
+    Effect,
+    MotorLag,
+    evaluate,
+    formula_arguments,
+    make_effect,
+)
 from multirotor_ros.model.integrator import Integrator
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, quat_to_matrix
@@ -31,6 +38,20 @@ from multirotor_ros.simulation import sensors as sens
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
 
 NS_PER_S = 1_000_000_000
+# A rotor speed above this multiple of the airframe's top speed is taken for a unit mistake (rpm sent as
+# rad/s) and refused by whoever reads it; between the top speed and this, set_command clamps it as an
+# ESC saturates.
+OVERSIZED_SPEED_FACTOR = 2.0
+
+
+def _sets_rotor_lag(effect: Effect) -> bool:
+    """Whether the effect makes the rotors follow their commands with a time constant (motor_lag)."""
+    return "rotor_time_constant_s" in effect.formulas()
+
+
+def _is_scheduled(effect: Effect) -> bool:
+    """Whether the effect acts from a moment of the flight on (its formulas read the time): a fault."""
+    return any("t" in formula_arguments(formula) for formula in effect.formulas().values())
 
 
 @dataclass(frozen=True)
@@ -101,13 +122,14 @@ class VehicleSimulator:
         # The true effects as given (what a log's metadata reports); the simulator's own motor lag is not
         # one of them, since the ESC reports the lagged speed and no log can see it.
         self.true_effects: tuple[Effect, ...] = tuple(given)
-        self._hidden_lag = any(e.id == "motor_lag" for e in given)
+        self._hidden_lag = any(_sets_rotor_lag(e) for e in given)
         self.motor_lag_s: float | None = None
         if motor_lag and not self._hidden_lag:
             self.motor_lag_s = airframe.motor_time_constant_s
             given.append(MotorLag(tau_s=airframe.motor_time_constant_s))
-        self._base_effects = [e for e in given if e.id != "actuator_fault"]
-        self._fault: Effect | None = next((e for e in given if e.id == "actuator_fault"), None)
+        # Scheduled effects are kept apart: inject_fault replaces them.
+        self._base_effects = [e for e in given if not _is_scheduled(e)]
+        self._faults = [e for e in given if _is_scheduled(e)]
         self._rebuild_model()
 
         self.t_ns = 0
@@ -141,8 +163,7 @@ class VehicleSimulator:
     # ------------------------------------------------------------------ model
 
     def _rebuild_model(self) -> None:
-        effects = self._base_effects + ([self._fault] if self._fault is not None else [])
-        self.model = Model(self.airframe, effects)
+        self.model = Model(self.airframe, self._base_effects + self._faults)
         self.integrator = Integrator(self.model, self.dt_ns / NS_PER_S, ground_height_m=self.ground_height_m)
 
     @property
@@ -175,25 +196,26 @@ class VehicleSimulator:
     def inject_fault(self, motor: int, effectiveness: float) -> None:
         """From now on rotor ``motor`` (1..N) gives ``effectiveness`` (0..1) of its thrust; 0 = repaired.
 
-        This replaces any earlier fault, a hidden ``actuator_fault`` of the effect list included.
+        This replaces any earlier fault, a hidden one of the effect list (``actuator_fault``) included.
         """
         if not 0 <= motor <= self.airframe.n_rotors:
             raise ValueError(f"fault motor must be 0 (none) or 1..{self.airframe.n_rotors}, got {motor}")
         if not 0.0 <= effectiveness <= 1.0:
             raise ValueError(f"fault effectiveness must be in [0, 1], got {effectiveness}")
-        self._fault = (
-            None
+        self._faults = (
+            []
             if motor == 0
-            else ActuatorFault(motor=motor, effectiveness=effectiveness, t_fault_s=self.t_s)
+            else [ActuatorFault(motor=motor, effectiveness=effectiveness, t_fault_s=self.t_s)]
         )
         self._rebuild_model()
 
     def injected_effectiveness(self) -> FloatArray:
         """(N,) effectiveness applied to each rotor now: the truth of the injected (or hidden) fault."""
+        context = self.model.context(S.StateBatch.from_flat(self.t_s, self.x, self.x[:, S.ROTORS_START :]))
         result = np.ones(self.airframe.n_rotors)
-        fault = self._fault
-        if fault is not None and self.t_s >= float(fault["t_fault_s"]):
-            result[int(fault["motor"]) - 1] = float(fault["effectiveness"])
+        for fault in self._faults:
+            if "rotor_thrust_factor" in fault.formulas():
+                result = result * evaluate(fault, "rotor_thrust_factor", context)[0]
         return result
 
     # ------------------------------------------------------------------ stepping
