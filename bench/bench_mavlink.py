@@ -114,7 +114,7 @@ def ros_physics(airframe_name: str) -> None:
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import Imu, JointState
 
-    from multirotor_ros.nodes.common import imu_message, odometry_message, stamp_from_ns
+    from multirotor_ros.nodes.messages import imu_message, odometry_message, stamp_from_ns
 
     _, physics = _physics(airframe_name)
     rclpy.init(args=None)
@@ -148,7 +148,7 @@ def ros_controller(airframe_name: str, seconds: float) -> None:
     from multirotor_ros.mavlink.actuators import RotorChannels
     from multirotor_ros.mavlink.peers import HoverController
     from multirotor_ros.model.airframe import load_airframe
-    from multirotor_ros.nodes.common import joint_state_from_rotor_speeds, stamp_to_ns, state_from_odometry
+    from multirotor_ros.nodes.messages import joint_state_from_rotor_speeds, stamp_to_ns, state_from_odometry
 
     airframe = load_airframe(airframe_name)
     controller = HoverController(RotorChannels(airframe))

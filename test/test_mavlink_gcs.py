@@ -19,9 +19,9 @@ from multirotor_ros.mavlink.gcs import GroundStationConfig, GroundStationLink, S
 from multirotor_ros.mavlink.sensors import Home, LocalTangentPlane, SensorModel
 from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key, signing_timestamp_now
 from multirotor_ros.mavlink.vehicle import VehicleState
-from multirotor_ros.mavlink.wire import RefusalLog
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import euler_to_quat, quat_to_euler
+from multirotor_ros.refusals import RefusalCounter
 
 KEY = parse_signing_key("ground station passphrase")
 YAW_ENU = 0.3  # [rad]
@@ -259,7 +259,7 @@ def test_with_a_key_only_signed_commands_move_the_setpoint(signed_setup):
 
 
 def test_link_without_a_state_yet_reads_setpoints_against_home():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     link = GroundStationLink(
         GroundStationConfig(port=9),
         SensorModel(Home()),

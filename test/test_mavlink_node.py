@@ -25,7 +25,7 @@ from multirotor_ros.mavlink.signing import parse_signing_key
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import quat_to_euler
-from multirotor_ros.nodes.common import (
+from multirotor_ros.nodes.messages import (
     imu_message,
     joint_state_from_rotor_speeds,
     odometry_message,

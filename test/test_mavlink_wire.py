@@ -16,7 +16,8 @@ from multirotor_ros.mavlink.signing import (
     parse_signing_key,
     signing_timestamp_now,
 )
-from multirotor_ros.mavlink.wire import MavlinkCodec, RefusalLog, SocketCallbacks, TcpServerEndpoint
+from multirotor_ros.mavlink.wire import MavlinkCodec, SocketCallbacks, TcpServerEndpoint
+from multirotor_ros.refusals import RefusalCounter
 
 KEY = parse_signing_key("correct horse")
 
@@ -77,7 +78,7 @@ def test_key_that_cannot_be_typed_is_refused():
 
 
 def test_good_packets_pass_and_garbage_between_them_is_counted():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals)
     mav = packer()
     data = pack(mav, heartbeat(mav)) + b"\x00\x11garbage\x42" + pack(mav, setpoint(mav))
@@ -87,7 +88,7 @@ def test_good_packets_pass_and_garbage_between_them_is_counted():
 
 
 def test_bad_crc_is_counted_and_the_next_packet_still_parses():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals)
     mav = packer()
     bad = bytearray(pack(mav, setpoint(mav)))
@@ -98,7 +99,7 @@ def test_bad_crc_is_counted_and_the_next_packet_still_parses():
 
 
 def test_truncated_datagram_is_counted_and_does_not_poison_the_next_one():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals)
     mav = packer()
     full = pack(mav, setpoint(mav))
@@ -110,7 +111,7 @@ def test_truncated_datagram_is_counted_and_does_not_poison_the_next_one():
 
 
 def test_stream_keeps_a_partial_packet_for_the_next_read():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals)
     mav = packer()
     full = pack(mav, setpoint(mav))
@@ -120,7 +121,7 @@ def test_stream_keeps_a_partial_packet_for_the_next_read():
 
 
 def test_unknown_message_id_is_counted():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals)
     mav = packer()
     packet = bytearray(pack(mav, heartbeat(mav)))
@@ -132,13 +133,13 @@ def test_unknown_message_id_is_counted():
 
 
 def test_without_a_key_everything_is_accepted_signed_or_not():
-    codec = MavlinkCodec(1, 1, RefusalLog())
+    codec = MavlinkCodec(1, 1, RefusalCounter())
     signed = packer(KEY)
     assert len(codec.decode(pack(signed, setpoint(signed)) + pack(packer(), setpoint(packer())))) == 2
 
 
 def test_with_a_key_commands_must_be_signed_with_it():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals, SigningPolicy(KEY))
     good = packer(KEY)
     wrong_key = packer(parse_signing_key("wrong"))
@@ -152,13 +153,13 @@ def test_with_a_key_commands_must_be_signed_with_it():
 
 
 def test_with_a_key_an_unsigned_heartbeat_is_still_accepted():
-    codec = MavlinkCodec(1, 1, RefusalLog(), SigningPolicy(KEY))
+    codec = MavlinkCodec(1, 1, RefusalCounter(), SigningPolicy(KEY))
     unsigned = packer()
     assert [m.get_type() for m in codec.decode(pack(unsigned, heartbeat(unsigned)))] == ["HEARTBEAT"]
 
 
 def test_a_replayed_signed_packet_is_refused():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals, SigningPolicy(KEY))
     good = packer(KEY)
     packet = pack(good, setpoint(good))
@@ -168,7 +169,7 @@ def test_a_replayed_signed_packet_is_refused():
 
 
 def test_a_new_stream_from_long_ago_is_refused():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals, SigningPolicy(KEY))
     old = packer(KEY, timestamp=signing_timestamp_now() - 3600 * 100_000)  # an hour old
     assert codec.decode(pack(old, setpoint(old))) == []
@@ -176,7 +177,7 @@ def test_a_new_stream_from_long_ago_is_refused():
 
 
 def test_tampered_signed_packet_fails_its_crc_or_its_signature():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     codec = MavlinkCodec(1, 1, refusals, SigningPolicy(KEY))
     good = packer(KEY)
     packet = bytearray(pack(good, setpoint(good)))
@@ -186,7 +187,7 @@ def test_tampered_signed_packet_fails_its_crc_or_its_signature():
 
 
 def test_outgoing_packets_are_signed_so_a_keyed_receiver_accepts_them():
-    sender = MavlinkCodec(1, 1, RefusalLog(), SigningPolicy(KEY))
+    sender = MavlinkCodec(1, 1, RefusalCounter(), SigningPolicy(KEY))
     receiver = mavlink2.MAVLink(None)
     receiver.signing.secret_key = KEY  # pymavlink then refuses anything not signed with the key
     message = receiver.decode(bytearray(sender.encode(heartbeat(sender.mav))))
@@ -198,7 +199,7 @@ def test_outgoing_packets_are_signed_so_a_keyed_receiver_accepts_them():
 
 
 def test_tcp_endpoint_serves_one_peer_and_refuses_a_second():
-    refusals = RefusalLog()
+    refusals = RefusalCounter()
     events: list[str] = []
     received: list[bytes] = []
     endpoint = TcpServerEndpoint(

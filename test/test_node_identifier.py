@@ -25,7 +25,7 @@ from multirotor_ros.io.flight_log import read_flight_log, rotor_columns
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import euler_to_quat
-from multirotor_ros.nodes.common import (
+from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
     odometry_message,
     stamp_from_ns,

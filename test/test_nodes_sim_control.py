@@ -1,4 +1,6 @@
-"""Simulator and controller nodes: message helpers (no DDS), then the closed loop over real ROS 2.
+"""Simulator and controller nodes: parameter checks (no DDS), then the closed loop over real ROS 2.
+
+Message conversion is tested in test_node_messages.py, refusal counting in test_refusal.py.
 
 The ROS tests start the executables as a user would (``multirotor node NAME --ros-args ...``) in the
 session's isolated domain and talk to them only through topics and parameter services. Most of them
@@ -15,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
@@ -24,19 +25,8 @@ from ros_harness import NodeProcess, Recorder, RosProbe
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Range
 
-from multirotor_ros.model.state import make_state
-from multirotor_ros.nodes.common import (
-    ParameterSpec,
-    Refusal,
-    RefusalCounter,
-    check_parameters,
-    odometry_message,
-    rotor_speeds_from_joint_state,
-    setpoint_from_pose,
-    stamp_from_ns,
-    stamp_to_ns,
-    state_from_odometry,
-)
+from multirotor_ros.nodes.messages import stamp_from_ns, stamp_to_ns
+from multirotor_ros.nodes.parameters import NodeParameter, check_parameters
 
 # ------------------------------------------------------------------ helpers without DDS
 
@@ -49,107 +39,15 @@ def joint_state(names, speeds, stamp_ns=0) -> JointState:
     return message
 
 
-ROTORS4 = ["rotor_1", "rotor_2", "rotor_3", "rotor_4"]
-
-
-def test_rotor_speeds_are_taken_in_any_name_order() -> None:
-    result = rotor_speeds_from_joint_state(
-        joint_state(["rotor_3", "rotor_1", "rotor_4", "rotor_2"], [3, 1, 4, 2], 7), 4, 100.0
-    )
-    np.testing.assert_array_equal(result.speeds_rad_s, [1, 2, 3, 4])
-    assert result.stamp_ns == 7
-
-
-@pytest.mark.parametrize(
-    ("names", "speeds", "reason"),
-    [
-        (ROTORS4[:3], [1, 2, 3], "wrong rotor count"),
-        (ROTORS4, [1, 2, 3], "wrong rotor count"),
-        (["rotor_1", "rotor_2", "rotor_3", "rotor_5"], [1, 2, 3, 4], "unknown rotor name"),
-        (["rotor_1", "rotor_2", "rotor_3", "motor_4"], [1, 2, 3, 4], "unknown rotor name"),
-        (["rotor_1", "rotor_2", "rotor_3", "rotor_04"], [1, 2, 3, 4], "unknown rotor name"),
-        (["rotor_1", "rotor_1", "rotor_3", "rotor_4"], [1, 2, 3, 4], "duplicate rotor name"),
-        (ROTORS4, [1, math.nan, 3, 4], "non-finite speed"),
-        (ROTORS4, [1, 2, math.inf, 4], "non-finite speed"),
-        (ROTORS4, [1, 2, 3, -0.5], "negative speed"),
-        (ROTORS4, [1, 2, 3, 5000.0], "oversized speed"),
-    ],
-)
-def test_bad_rotor_speed_messages_are_refused_with_a_reason(names, speeds, reason) -> None:
-    result = rotor_speeds_from_joint_state(joint_state(names, speeds), 4, 1000.0)
-    assert isinstance(result, Refusal)
-    assert result.reason == reason
-    assert result.detail
-
-
-def test_odometry_has_the_pose_in_world_and_the_twist_in_body_axes() -> None:
-    # Yawed +90 deg and flying north: forward in the body, i.e. +x of FLU.
-    x = make_state(4, position_m=(1, 2, 3), velocity_m_s=(0, 2, 0), euler_rad=(0, 0, math.pi / 2))[0]
-    message = odometry_message(x, stamp_from_ns(1_500_000_000))
-    assert (message.header.frame_id, message.child_frame_id) == ("odom", "base_link")
-    assert message.twist.twist.linear.x == pytest.approx(2.0)
-    assert message.twist.twist.linear.y == pytest.approx(0.0, abs=1e-12)
-    assert message.pose.pose.orientation.z == pytest.approx(math.sqrt(0.5))
-    p, v, q, _ = state_from_odometry(message)
-    np.testing.assert_allclose(p, [1, 2, 3])
-    np.testing.assert_allclose(v, [0, 2, 0], atol=1e-12)
-    assert stamp_to_ns(message.header.stamp) == 1_500_000_000
-
-
-def test_odometry_that_is_not_finite_or_not_a_rotation_is_refused() -> None:
-    message = odometry_message(make_state(4)[0], Time())
-    message.pose.pose.position.x = math.nan
-    assert state_from_odometry(message).reason == "non-finite odometry"
-    message = odometry_message(make_state(4)[0], Time())
-    message.pose.pose.orientation.w = 2.0
-    assert state_from_odometry(message).reason == "invalid orientation"
-
-
-def test_a_setpoint_gives_position_and_yaw() -> None:
-    message = PoseStamped()
-    message.pose.position.x = 1.0
-    message.pose.orientation.z, message.pose.orientation.w = math.sin(0.25), math.cos(0.25)
-    position, yaw = setpoint_from_pose(message)
-    assert position[0] == 1.0 and yaw == pytest.approx(0.5)
-    message.pose.orientation.w = 0.0
-    message.pose.orientation.z = 0.0
-    assert setpoint_from_pose(message)[1] == 0.0  # an unset orientation means yaw 0
-    message.pose.position.y = math.inf
-    assert setpoint_from_pose(message).reason == "non-finite setpoint"
-
-
-class _Logger:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def warning(self, text: str) -> None:
-        self.lines.append(text)
-
-
-def test_refusals_are_counted_logged_once_per_reason_then_summarised() -> None:
-    now = [0.0]
-    logger = _Logger()
-    counter = RefusalCounter(logger, "commands", summary_period_s=10.0, clock=lambda: now[0])
-    for _ in range(5):
-        counter.refuse("negative speed", "rotor_1 = -1")
-    counter.refuse("non-finite speed", "rotor_2 = nan")
-    assert counter.counts == {"negative speed": 5, "non-finite speed": 1}
-    assert len(logger.lines) == 2
-    now[0] = 11.0
-    counter.refuse("negative speed", "rotor_1 = -1")
-    assert len(logger.lines) == 3
-    assert "5 more" in logger.lines[-1] and "total 7" in logger.lines[-1]
-
-
 def test_parameter_checks_give_reasons() -> None:
     from rclpy.parameter import Parameter
 
     specs = {
         s.name: s
         for s in [
-            ParameterSpec("gain", 1.0, "a gain", "1/s", 0.0, 10.0, low_exclusive=True),
-            ParameterSpec("motor", 0, "a rotor", "-", 0, 8),
-            ParameterSpec("fixed", 1.0, "read-only", read_only=True),
+            NodeParameter("gain", 1.0, "a gain", "1/s", 0.0, 10.0, low_exclusive=True),
+            NodeParameter("motor", 0, "a rotor", "-", 0, 8),
+            NodeParameter("fixed", 1.0, "read-only", read_only=True),
         ]
     }
 
@@ -465,7 +363,7 @@ def test_a_lone_simulator_publishes_its_sensors_and_stops_rotors_without_command
 
 
 def test_a_node_built_with_a_bad_parameter_ends_with_status_2_and_the_reason(capsys) -> None:
-    from multirotor_ros.nodes.common import run_node
+    from multirotor_ros.nodes.entry import run_node
     from multirotor_ros.nodes.simulator import SimulatorNode
 
     assert run_node(SimulatorNode, ["simulator", "--ros-args", "-p", "airframe:=no_such_frame"]) == 2

@@ -190,7 +190,7 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from sensor_msgs.msg import JointState
 
-    from multirotor_ros.nodes.common import stamp_to_s
+    from multirotor_ros.nodes.messages import stamp_to_s
 
     context = rclpy.Context()
     rclpy.init(args=["multirotor_demo"], context=context)

@@ -5,7 +5,8 @@ wrapper. Frames are NED / FRD on the wire and ENU / FLU inside; every conversion
 :mod:`multirotor_ros.frames` (:func:`.messages.ned_view` applies it to a whole state).
 
 Modules
-    :mod:`.wire` codec and sockets, refusal counts; :mod:`.signing` MAVLink 2 signing policy;
+    :mod:`.wire` codec and sockets (refusals counted by :mod:`multirotor_ros.refusals`);
+    :mod:`.signing` MAVLink 2 signing policy;
     :mod:`.sensors` barometer (ISA), magnetometer and GPS synthesis around a home;
     :mod:`.actuators` actuator outputs -> rotor speeds through the motor map;
     :mod:`.messages` state in NED/FRD, message schedules; :mod:`.vehicle` the state type and the

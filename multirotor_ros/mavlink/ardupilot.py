@@ -37,7 +37,8 @@ from dataclasses import dataclass
 from multirotor_ros.mavlink.actuators import RotorChannels
 from multirotor_ros.mavlink.messages import ned_view
 from multirotor_ros.mavlink.vehicle import Simulation, VehicleState
-from multirotor_ros.mavlink.wire import RefusalLog, UdpEndpoint
+from multirotor_ros.mavlink.wire import UdpEndpoint
+from multirotor_ros.refusals import RefusalCounter
 
 _LOGGER = logging.getLogger(__name__)
 
@@ -122,7 +123,7 @@ class ArduPilotSession:
         config: ArduPilotConfig,
         simulation: Simulation,
         channels: RotorChannels,
-        refusals: RefusalLog,
+        refusals: RefusalCounter,
         on_restart: Callable[[], None],
         clock: Callable[[], float] = time.monotonic,
     ):

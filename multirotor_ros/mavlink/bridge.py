@@ -29,9 +29,9 @@ from multirotor_ros.mavlink.px4 import Px4Config, Px4Session
 from multirotor_ros.mavlink.sensors import Home, SensorModel
 from multirotor_ros.mavlink.signing import SigningPolicy
 from multirotor_ros.mavlink.vehicle import Physics, Simulation, VehicleState
-from multirotor_ros.mavlink.wire import RefusalLog
 from multirotor_ros.model.airframe import GRAVITY_M_S2
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.refusals import RefusalCounter
 
 _LOGGER = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ class MavlinkBridge:
         channels: RotorChannels,
         physics: Physics | None,
         outputs: BridgeOutputs,
-        refusals: RefusalLog | None = None,
+        refusals: RefusalCounter | None = None,
         signing: SigningPolicy | None = None,
         clock: Callable[[], float] = time.monotonic,
     ):
@@ -82,7 +82,7 @@ class MavlinkBridge:
             )
         self.config = config
         self.clock = clock
-        self.refusals = refusals or RefusalLog()
+        self.refusals = refusals or RefusalCounter()
         self.sensors = SensorModel(config.home)
         self.simulation = Simulation(
             channels.airframe.n_rotors, GRAVITY_M_S2, physics, outputs.motor_command, outputs.vehicle_state

@@ -54,8 +54,9 @@ from multirotor_ros.mavlink.messages import (
 from multirotor_ros.mavlink.sensors import SensorModel
 from multirotor_ros.mavlink.signing import SigningPolicy
 from multirotor_ros.mavlink.vehicle import VehicleState
-from multirotor_ros.mavlink.wire import MavlinkCodec, Message, RefusalLog, UdpEndpoint
+from multirotor_ros.mavlink.wire import MavlinkCodec, Message, UdpEndpoint
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.refusals import RefusalCounter
 
 DEFAULT_PORT = 14550
 GCS_PEER_MEMORY_S = 10.0
@@ -130,7 +131,7 @@ class GroundStationLink:
         sensors: SensorModel,
         n_rotors: int,
         signing: SigningPolicy,
-        refusals: RefusalLog,
+        refusals: RefusalCounter,
         on_setpoint: Callable[[Setpoint], None],
         clock: Callable[[], float] = time.monotonic,
     ):

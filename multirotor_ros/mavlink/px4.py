@@ -50,7 +50,8 @@ from multirotor_ros.mavlink.messages import (
 )
 from multirotor_ros.mavlink.sensors import GpsFix, SensorModel
 from multirotor_ros.mavlink.vehicle import Simulation, VehicleState
-from multirotor_ros.mavlink.wire import MavlinkCodec, Message, RefusalLog, SocketCallbacks, TcpServerEndpoint
+from multirotor_ros.mavlink.wire import MavlinkCodec, Message, SocketCallbacks, TcpServerEndpoint
+from multirotor_ros.refusals import RefusalCounter
 
 _LOGGER = logging.getLogger(__name__)
 
@@ -103,7 +104,7 @@ class Px4Session:
         simulation: Simulation,
         channels: RotorChannels,
         sensors: SensorModel,
-        refusals: RefusalLog,
+        refusals: RefusalCounter,
         clock: Callable[[], float] = time.monotonic,
     ):
         self.config = config

@@ -6,9 +6,8 @@ bridge's loop calls it when bytes arrive.
 
 Bad input is dropped and counted, never raised: corrupt bytes between packets, a bad CRC, a packet
 cut short, an unknown message id, a refused signature (:mod:`multirotor_ros.mavlink.signing`), a
-second peer on a port that already has one. :class:`RefusalLog` holds the counts; its sink (in the
-node: the shared ``RefusalCounter``, which logs the first of each reason and then throttled
-summaries) decides what a person sees.
+second peer on a port that already has one. A :class:`~multirotor_ros.refusals.RefusalCounter`
+holds the counts and logs the first of each reason, then throttled summaries.
 """
 
 from __future__ import annotations
@@ -23,32 +22,11 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from multirotor_ros.mavlink.signing import SigningPolicy
+from multirotor_ros.refusals import RefusalCounter
 
 _LOGGER = logging.getLogger(__name__)
 
 Message = Any  # a pymavlink MAVLink_message; pymavlink has no useful static types for its messages
-RefusalSink = Callable[[str, str], None]
-
-
-class RefusalLog:
-    """Counts of dropped input per reason; every refusal is also handed to ``sink`` (reason, detail)."""
-
-    def __init__(self, sink: RefusalSink | None = None):
-        self.counts: dict[str, int] = {}
-        self._sink = sink
-
-    def refuse(self, reason: str, detail: str) -> None:
-        """Count one refusal and pass it on."""
-        self.counts[reason] = self.counts.get(reason, 0) + 1
-        if self._sink is not None:
-            self._sink(reason, detail)
-        elif self.counts[reason] == 1:
-            _LOGGER.warning("refused (%s): %s; further ones are only counted", reason, detail)
-
-    @property
-    def total(self) -> int:
-        """All refusals so far."""
-        return sum(self.counts.values())
 
 
 class _Collector:
@@ -74,7 +52,7 @@ class MavlinkCodec:
         self,
         system_id: int,
         component_id: int,
-        refusals: RefusalLog,
+        refusals: RefusalCounter,
         signing: SigningPolicy | None = None,
         link_id: int = 0,
     ):
@@ -164,7 +142,7 @@ class TcpServerEndpoint:
 
     SEND_TIMEOUT_S = 2.0
 
-    def __init__(self, host: str, port: int, callbacks: SocketCallbacks, refusals: RefusalLog):
+    def __init__(self, host: str, port: int, callbacks: SocketCallbacks, refusals: RefusalCounter):
         self.callbacks = callbacks
         self.refusals = refusals
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)

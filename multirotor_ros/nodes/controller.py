@@ -27,29 +27,27 @@ from sensor_msgs.msg import JointState
 from multirotor_ros.control.gains import GAIN_UNITS, airframe_gains
 from multirotor_ros.control.law import SaturationController
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.common import (
-    ParameterSpec,
-    Refusal,
-    RefusalCounter,
-    check_parameters,
-    declare_parameters,
+from multirotor_ros.model.rotation import quat_to_euler
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
-    run_node,
     setpoint_from_pose,
     stamp_to_ns,
     state_from_odometry,
 )
+from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.refusals import Refusal, RefusalCounter
 
 
-def controller_parameters(gains: dict[str, float]) -> list[ParameterSpec]:
+def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
     """Gains (defaults from the airframe YAML) and the node's own settings."""
     specs = [
-        ParameterSpec(name, value, meaning, unit, 0.0, 1e6, low_exclusive=True, read_only=name == "rate_hz")
+        NodeParameter(name, value, meaning, unit, 0.0, 1e6, low_exclusive=True, read_only=name == "rate_hz")
         for name, value in gains.items()
         for unit, meaning in [GAIN_UNITS[name]]
     ]
     specs.append(
-        ParameterSpec(
+        NodeParameter(
             "odom_timeout_s",
             0.5,
             "stop commanding when odometry is older than this",
@@ -70,7 +68,7 @@ class ControllerNode(Node):
         name = self.declare_parameter(
             "airframe",
             "x8_octorotor",
-            ParameterSpec(
+            NodeParameter(
                 "airframe",
                 "",
                 "airframe config name or YAML path (its controller section gives the gains)",
@@ -90,8 +88,8 @@ class ControllerNode(Node):
         self._target: tuple[np.ndarray, float] | None = None
         self._odom_frame = ""
         self._stale = False
-        self._odom_refusals = RefusalCounter(self.get_logger(), "odom")
-        self._setpoint_refusals = RefusalCounter(self.get_logger(), "setpoint")
+        self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
+        self._setpoint_refusals = RefusalCounter(self.get_logger().warning, "setpoint")
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         self.create_subscription(Odometry, "odom", self._on_odom, 10)
@@ -118,7 +116,7 @@ class ControllerNode(Node):
         self._state_received_ns = self.get_clock().now().nanoseconds
         self._odom_frame = message.header.frame_id
         if self._target is None:
-            self._target = (state[0].copy(), float(np.arctan2(*_yaw_terms(state[2]))))
+            self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
 
     def _on_setpoint(self, message: PoseStamped) -> None:
         frame = message.header.frame_id
@@ -154,12 +152,6 @@ class ControllerNode(Node):
         for parameter in parameters:
             if parameter.name == "odom_timeout_s":
                 self._odom_timeout_ns = round(float(parameter.value) * 1e9)
-
-
-def _yaw_terms(q_WB: np.ndarray) -> tuple[float, float]:
-    """(sin-like, cos-like) terms whose atan2 is the ZYX yaw of a quaternion (w, x, y, z)."""
-    w, x, y, z = (float(c) for c in q_WB)
-    return 2 * (w * z + x * y), 1 - 2 * (y * y + z * z)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -10,7 +10,8 @@ Wiring::
 
 ``input``: ``odom`` (state from odometry: pose ENU, twist in body FLU; the acceleration the identifier
 needs is the central difference of the velocity) or ``pose_imu`` (position and attitude from the pose,
-body rates and specific force from the IMU, velocity from position differences, low-passed).
+body rates and specific force from the IMU, velocity from position differences, low-passed:
+ident/pose_imu.py).
 ``residuals`` is published with every processed sample (``sample_rate_hz`` on average);
 ``identified_parameters`` and ``diagnostics`` every 1/``publish_rate_hz`` of wall time, and the record
 is flushed every second. Stamps come from the messages, so the node follows simulated time as it is.
@@ -23,11 +24,9 @@ observer. Detection thresholds are parameters ``detection.*`` that ``ros2 param 
 
 from __future__ import annotations
 
-import math
 from dataclasses import fields
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
@@ -39,31 +38,27 @@ from multirotor_ros.diagnosis.detection import DetectionSettings
 from multirotor_ros.diagnosis.monitor import FlightMonitor, MonitorSettings, Refused, StepResult
 from multirotor_ros.diagnosis.record import FlightRecord, RecordError
 from multirotor_ros.diagnosis.residuals import ObserverSettings
+from multirotor_ros.ident.pose_imu import PoseImuFusion, StateSample, Unpaired
 from multirotor_ros.ident.rls import OnlineSettings
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.effects import EFFECTS, parse_effect_list
-from multirotor_ros.model.rotation import quat_to_matrix
-from multirotor_ros.nodes.common import (
-    ParameterSpec,
-    Refusal,
-    RefusalCounter,
-    check_parameters,
-    declare_parameters,
-    quaternion_from_msg,
+from multirotor_ros.nodes.clock import steady_clock
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.messages import (
+    imu_from_message,
+    pose_from_message,
     rotor_speeds_from_joint_state,
-    run_node,
     stamp_from_ns,
     stamp_to_ns,
     state_from_odometry,
 )
+from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.refusals import Refusal, RefusalCounter
+from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
-# Rotor speeds above this multiple of the airframe's top speed are a unit mistake (rpm), not a reading.
-OVERSIZED_SPEED_FACTOR = 2.0
 # Messages kept while a callback runs: a simulator running faster than real time publishes in bursts,
 # and a dropped state or rotor-speed message is a gap in the data.
 QUEUE_DEPTH = 100
-# Velocity from pose differences (pose_imu input) is low-passed with this time constant [s].
-POSE_VELOCITY_TIME_CONSTANT_S = 0.05
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
 _DETECTION_HELP = {
@@ -81,26 +76,26 @@ _DETECTION_HELP = {
 }
 
 
-def identifier_parameters() -> list[ParameterSpec]:
+def identifier_parameters() -> list[NodeParameter]:
     """The identifier's parameters; ``detection.*`` may change at run time, the others are read-only."""
     defaults = DetectionSettings()
     online = OnlineSettings()
     observer = ObserverSettings()
     monitor = MonitorSettings()
     specs = [
-        ParameterSpec("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
-        ParameterSpec(
+        NodeParameter("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
+        NodeParameter(
             "effects",
             "",
             "effects to fit, comma-separated ids of effects.md; '' = the airframe's "
             "own fittable effects, 'none' = the thrust constant only",
             read_only=True,
         ),
-        ParameterSpec("input", "odom", "state source: 'odom' or 'pose_imu'", read_only=True),
-        ParameterSpec(
+        NodeParameter("input", "odom", "state source: 'odom' or 'pose_imu'", read_only=True),
+        NodeParameter(
             "window_s", online.window_s, "samples kept for the refit", "s", 1.0, 3600.0, read_only=True
         ),
-        ParameterSpec(
+        NodeParameter(
             "refit_period_s",
             online.refit_period_s,
             "time between refits of the window",
@@ -109,10 +104,10 @@ def identifier_parameters() -> list[ParameterSpec]:
             3600.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "forgetting", online.forgetting, "RLS forgetting factor per sample", "-", 0.9, 1.0, read_only=True
         ),
-        ParameterSpec(
+        NodeParameter(
             "sample_rate_hz",
             monitor.sample_rate_hz,
             "state samples processed per second at most",
@@ -121,7 +116,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             1000.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "max_gap_s",
             monitor.max_gap_s,
             "a longer silence in the state messages is a gap",
@@ -130,7 +125,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             60.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "motor_speed_max_age_s",
             monitor.motor_speed_max_age_s,
             "rotor speeds (and, for pose_imu, a pose) older than this do not go with a state sample",
@@ -139,7 +134,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             10.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "max_wait_s",
             monitor.max_wait_s,
             "a state sample waits at most this long (of stamps) for the rotor speeds of its time",
@@ -148,7 +143,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             10.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "observer_convergence_time_s",
             observer.convergence_time_s,
             "super-twisting observer: time to follow a stopped rotor",
@@ -157,7 +152,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             10.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "observer_filter_time_constant_s",
             observer.filter_time_constant_s,
             "low-pass on the observer's estimate",
@@ -166,7 +161,7 @@ def identifier_parameters() -> list[ParameterSpec]:
             1.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "publish_rate_hz",
             10.0,
             "rate of identified_parameters and diagnostics",
@@ -175,25 +170,21 @@ def identifier_parameters() -> list[ParameterSpec]:
             100.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "record_path", "", "directory of the record (resumed at start); '' = no record", read_only=True
         ),
     ]
     for f in fields(DetectionSettings):
         meaning, unit = _DETECTION_HELP[f.name]
         specs.append(
-            ParameterSpec(f"detection.{f.name}", float(getattr(defaults, f.name)), meaning, unit, 0.0, 1e6)
+            NodeParameter(f"detection.{f.name}", float(getattr(defaults, f.name)), meaning, unit, 0.0, 1e6)
         )
     return specs
 
 
 def fittable_effects(airframe_effects: list[str]) -> list[str]:
     """The airframe's own effects that the online identifier can fit (those with a linear parameter)."""
-    return [
-        e
-        for e in airframe_effects
-        if any(n not in EFFECTS[e].nonlinear_parameters for n in EFFECTS[e].parameter_units)
-    ]
+    return [e for e in airframe_effects if any(p.linear for p in EFFECTS[e].parameter_list(None))]
 
 
 class IdentifierNode(Node):
@@ -231,12 +222,10 @@ class IdentifierNode(Node):
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         logger = self.get_logger()
         self._refused = {
-            "motor_speeds": RefusalCounter(logger, "motor_speeds"),
-            "state": RefusalCounter(logger, "odom" if p["input"] == "odom" else "pose/imu"),
+            "motor_speeds": RefusalCounter(logger.warning, "motor_speeds"),
+            "state": RefusalCounter(logger.warning, "odom" if p["input"] == "odom" else "pose/imu"),
         }
-        self._skipped = RefusalCounter(logger, "state samples (unusable)")
-        # pose_imu: stamp, p_WB_W, q_WB, v_WB_W (from position differences) of the newest pose.
-        self._pose: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._skipped = RefusalCounter(logger.warning, "state samples (unusable)")
         self._last_stamp_ns = 0
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
@@ -246,6 +235,9 @@ class IdentifierNode(Node):
         if p["input"] == "odom":
             self.create_subscription(Odometry, "odom", self._on_odometry, QUEUE_DEPTH)
         else:
+            self._fusion = PoseImuFusion(
+                self.monitor.diagnoser.model.gravity_m_s2, p["max_gap_s"], p["motor_speed_max_age_s"]
+            )
             # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
             sensor_qos = QoSProfile(
                 depth=QUEUE_DEPTH,
@@ -256,7 +248,7 @@ class IdentifierNode(Node):
             self.create_subscription(Imu, "imu", self._on_imu, sensor_qos)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        wall = self._wall_clock()
+        wall = steady_clock()
         self.create_timer(1.0 / p["publish_rate_hz"], self._publish_status, clock=wall)
         self.create_timer(1.0, self._flush_record, clock=wall)
         for note in self.monitor.notes:
@@ -294,11 +286,6 @@ class IdentifierNode(Node):
             self.monitor.set_detection_settings(self._detection_settings(self._params))
             self.get_logger().info(f"detection thresholds changed: {changed}")
 
-    def _wall_clock(self) -> Any:
-        from rclpy.clock import Clock, ClockType
-
-        return Clock(clock_type=ClockType.STEADY_TIME)
-
     # ------------------------------------------------------------------ inputs
 
     def _on_motor_speeds(self, message: JointState) -> None:
@@ -323,62 +310,33 @@ class IdentifierNode(Node):
         if isinstance(state, Refusal):
             self._refused["state"].refuse(state.reason, state.detail)
             return
-        p_WB_W, v_WB_W, q_WB, w_WB_B = state
-        self._take(stamp_to_ns(message.header.stamp), p_WB_W, v_WB_W, q_WB, w_WB_B, None)
+        self._take(StateSample(stamp_to_ns(message.header.stamp), *state))
 
     def _on_pose(self, message: PoseStamped) -> None:
-        stamp = stamp_to_ns(message.header.stamp)
-        position = np.array([message.pose.position.x, message.pose.position.y, message.pose.position.z])
-        q_WB = quaternion_from_msg(message.pose.orientation)
-        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(q_WB))):
-            self._refused["state"].refuse("non-finite pose", f"position {position}, orientation {q_WB}")
+        pose = pose_from_message(message)
+        if isinstance(pose, Refusal):
+            self._refused["state"].refuse(pose.reason, pose.detail)
             return
-        norm = float(np.linalg.norm(q_WB))
-        if abs(norm - 1.0) > 1e-3:
-            self._refused["state"].refuse(
-                "invalid orientation", f"pose quaternion norm {norm:.6g}, expected 1"
-            )
-            return
-        velocity = np.zeros(3)
-        if self._pose is not None:
-            last_stamp, last_position, _, last_velocity = self._pose
-            if stamp <= last_stamp:
-                self._refused["state"].refuse(
-                    "duplicated stamp" if stamp == last_stamp else "out-of-order stamp",
-                    f"pose stamp {stamp} ns, previous {last_stamp} ns",
-                )
-                return
-            dt = (stamp - last_stamp) * 1e-9
-            if dt <= self._params["max_gap_s"]:
-                blend = 1.0 - math.exp(-dt / POSE_VELOCITY_TIME_CONSTANT_S)
-                velocity = last_velocity + blend * ((position - last_position) / dt - last_velocity)
-        self._pose = (stamp, position, q_WB / norm, velocity)
+        refusal = self._fusion.pose(stamp_to_ns(message.header.stamp), *pose)
+        if refusal is not None:
+            self._refused["state"].refuse(refusal.reason, refusal.detail)
 
     def _on_imu(self, message: Imu) -> None:
-        if self._pose is None:
-            self._skipped.refuse("no pose yet", "imu arrived before the first pose")
+        imu = imu_from_message(message)
+        if isinstance(imu, Refusal):
+            self._refused["state"].refuse(imu.reason, imu.detail)
             return
-        w_B = np.array([message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z])
-        f_B = np.array(
-            [message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z]
-        )
-        if not (np.all(np.isfinite(w_B)) and np.all(np.isfinite(f_B))):
-            self._refused["state"].refuse("non-finite imu", f"rates {w_B}, specific force {f_B}")
+        sample = self._fusion.imu(stamp_to_ns(message.header.stamp), *imu)
+        if isinstance(sample, Unpaired):
+            self._skipped.refuse(sample.reason, sample.detail)
             return
-        stamp = stamp_to_ns(message.header.stamp)
-        pose_stamp, position, q_WB, velocity = self._pose
-        if abs(stamp - pose_stamp) * 1e-9 > self._params["motor_speed_max_age_s"]:
-            self._skipped.refuse("no recent pose", f"imu at {stamp} ns, newest pose at {pose_stamp} ns")
-            return
-        # The pose's attitude (motion capture) is the better one; the IMU gives rates and specific force.
-        # Specific force is R^T (a - g_vec): a_W = R f_B + g_vec, g_vec = (0, 0, -g).
-        a_W = quat_to_matrix(q_WB) @ f_B
-        a_W[2] -= self.monitor.diagnoser.model.gravity_m_s2
-        self._take(stamp, position, velocity, q_WB, w_B, a_W)
+        self._take(sample)
 
-    def _take(self, stamp_ns: int, p_WB_W: Any, v_WB_W: Any, q_WB: Any, w_WB_B: Any, a_W: Any) -> None:
+    def _take(self, sample: StateSample) -> None:
         try:
-            outcome = self.monitor.state(stamp_ns, p_WB_W, v_WB_W, q_WB, w_WB_B, a_W)
+            outcome = self.monitor.state(
+                sample.stamp_ns, sample.p_WB_W, sample.v_WB_W, sample.q_WB, sample.w_WB_B, sample.a_WB_W
+            )
         except (ValueError, ArithmeticError) as error:
             # The monitor validates its inputs; anything that still fails is counted, not fatal.
             self._refused["state"].refuse("could not be processed", f"{type(error).__name__}: {error}")

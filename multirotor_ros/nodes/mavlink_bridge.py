@@ -19,7 +19,6 @@ topic, is counted per reason and logged once per reason, then in throttled summa
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -27,7 +26,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
@@ -48,45 +47,41 @@ from multirotor_ros.mavlink.px4 import Px4Config
 from multirotor_ros.mavlink.sensors import Home
 from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
 from multirotor_ros.mavlink.vehicle import VehicleState
-from multirotor_ros.mavlink.wire import RefusalLog
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, euler_to_quat
-from multirotor_ros.nodes.common import (
-    ParameterSpec,
-    Refusal,
-    RefusalCounter,
-    check_parameters,
-    declare_parameters,
-    imu_message,
+from multirotor_ros.nodes.clock import CLOCK_QOS
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.messages import (
+    imu_from_message,
     joint_state_from_rotor_speeds,
     odometry_message,
     pose_message,
     rotor_speeds_from_joint_state,
-    run_node,
+    simulated_imu_message,
     stamp_from_ns,
     stamp_to_ns,
     state_from_odometry,
 )
+from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.refusals import Refusal, RefusalCounter
+from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
 NODE_NAME = "mavlink_bridge"
-CLOCK_QOS = QoSProfile(
-    depth=1, reliability=ReliabilityPolicy.BEST_EFFORT
-)  # as rclpy's time source subscribes
 
 _HOME = Home()
 PARAMETERS = (
-    ParameterSpec("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
-    ParameterSpec("flight_stack", "px4", "px4, ardupilot or none (ground station only)", read_only=True),
-    ParameterSpec(
+    NodeParameter("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
+    NodeParameter("flight_stack", "px4", "px4, ardupilot or none (ground station only)", read_only=True),
+    NodeParameter(
         "internal_physics",
         True,
         "step an own simulation core in lockstep (else forward the simulator node's odom/imu/motor_speeds)",
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "flight_stack_address", "127.0.0.1", "address the flight-stack port binds to", read_only=True
     ),
-    ParameterSpec(
+    NodeParameter(
         "flight_stack_port",
         0,
         "TCP (PX4) or UDP (ArduPilot) port; 0 = 4560 or 9002",
@@ -95,7 +90,7 @@ PARAMETERS = (
         65535,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "lockstep_step_s",
         0.004,
         "PX4: simulated time per actuator message",
@@ -104,7 +99,7 @@ PARAMETERS = (
         0.05,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "physics_rate_hz",
         1000.0,
         "integration rate of the own simulation core",
@@ -113,27 +108,27 @@ PARAMETERS = (
         10000.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "publish_rate_hz", 250.0, "rate of odom in internal-physics mode", "Hz", 1.0, 1000.0, read_only=True
     ),
-    ParameterSpec(
+    NodeParameter(
         "publish_clock", False, "internal physics: publish simulated time on clock", read_only=True
     ),
-    ParameterSpec(
+    NodeParameter(
         "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
     ),
-    ParameterSpec("sensor_noise", True, "internal physics: simulate sensor noise", read_only=True),
-    ParameterSpec(
+    NodeParameter("sensor_noise", True, "internal physics: simulate sensor noise", read_only=True),
+    NodeParameter(
         "seed", 0, "internal physics: random seed of the sensor noise", "", 0, 2**31 - 1, read_only=True
     ),
-    ParameterSpec(
+    NodeParameter(
         "rotor_channels",
         "",
         "flight-stack output channel (1-based) of rotor 1..N, comma separated; "
         "empty = channel k drives rotor k",
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "pwm_min_us",
         1000.0,
         "ArduPilot pulse for no thrust on a normalized motor map",
@@ -142,7 +137,7 @@ PARAMETERS = (
         2500.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "pwm_max_us",
         2000.0,
         "ArduPilot pulse for full thrust on a normalized motor map",
@@ -151,11 +146,11 @@ PARAMETERS = (
         2500.0,
         read_only=True,
     ),
-    ParameterSpec("gps_rate_hz", 10.0, "PX4: HIL_GPS rate", "Hz", 5.0, 10.0, read_only=True),
-    ParameterSpec("gcs_enabled", True, "send telemetry to a ground station", read_only=True),
-    ParameterSpec("gcs_address", "127.0.0.1", "ground station address", read_only=True),
-    ParameterSpec("gcs_port", 14550, "ground station UDP port", "port", 1, 65535, read_only=True),
-    ParameterSpec(
+    NodeParameter("gps_rate_hz", 10.0, "PX4: HIL_GPS rate", "Hz", 5.0, 10.0, read_only=True),
+    NodeParameter("gcs_enabled", True, "send telemetry to a ground station", read_only=True),
+    NodeParameter("gcs_address", "127.0.0.1", "ground station address", read_only=True),
+    NodeParameter("gcs_port", 14550, "ground station UDP port", "port", 1, 65535, read_only=True),
+    NodeParameter(
         "gcs_bind_port",
         0,
         "local UDP port of the ground-station link; 0 = any",
@@ -164,7 +159,7 @@ PARAMETERS = (
         65535,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "gcs_telemetry_rate_hz",
         50.0,
         "ATTITUDE and LOCAL_POSITION_NED rate",
@@ -173,15 +168,15 @@ PARAMETERS = (
         500.0,
         read_only=True,
     ),
-    ParameterSpec("system_id", 1, "MAVLink system id of the vehicle", "", 1, 255, read_only=True),
-    ParameterSpec(
+    NodeParameter("system_id", 1, "MAVLink system id of the vehicle", "", 1, 255, read_only=True),
+    NodeParameter(
         "signing_key",
         "",
         "MAVLink 2 signing: 64 hex digits, or a passphrase whose SHA-256 is the key (as MAVProxy's "
         "'signing key WORD', one word); when set, unsigned or badly signed commands are refused",
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "home_latitude_deg",
         _HOME.latitude_deg,
         "latitude of the odom origin (WGS-84)",
@@ -190,7 +185,7 @@ PARAMETERS = (
         89.9,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "home_longitude_deg",
         _HOME.longitude_deg,
         "longitude of the odom origin",
@@ -199,7 +194,7 @@ PARAMETERS = (
         180.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "home_altitude_m",
         _HOME.altitude_m,
         "altitude of the odom origin above mean sea level",
@@ -208,7 +203,7 @@ PARAMETERS = (
         10000.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "mag_declination_deg",
         _HOME.mag_declination_deg,
         "magnetic declination at home (east +)",
@@ -217,7 +212,7 @@ PARAMETERS = (
         180.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "mag_inclination_deg",
         _HOME.mag_inclination_deg,
         "magnetic inclination at home (down +)",
@@ -226,7 +221,7 @@ PARAMETERS = (
         90.0,
         read_only=True,
     ),
-    ParameterSpec(
+    NodeParameter(
         "mag_strength_gauss",
         _HOME.mag_strength_gauss,
         "magnetic field strength at home",
@@ -279,8 +274,9 @@ class MavlinkBridgeNode(Node):
             p["mag_inclination_deg"],
             p["mag_strength_gauss"],
         )
-        self.refusal_counter = RefusalCounter(self.get_logger(), "input")
-        self.refusals = RefusalLog(self.refusal_counter.refuse)
+        # Two counters that log alike: the ground station's errors_comm counts MAVLink refusals only.
+        self.link_refusals = RefusalCounter(self.get_logger().warning, "input")
+        self.topic_refusals = RefusalCounter(self.get_logger().warning, "input")
         signing = SigningPolicy(parse_signing_key(p["signing_key"]))
         self.publish_clock = bool(p["publish_clock"])
         self._frames = (p["frame_prefix"] + "odom", p["frame_prefix"] + "base_link")
@@ -341,7 +337,7 @@ class MavlinkBridgeNode(Node):
         )
         outputs = BridgeOutputs(self._publish_command, self._publish_state, self._publish_setpoint)
         try:
-            self.bridge = MavlinkBridge(config, channels, self.physics, outputs, self.refusals, signing)
+            self.bridge = MavlinkBridge(config, channels, self.physics, outputs, self.link_refusals, signing)
         except OSError as error:
             raise ValueError(str(error)) from error
         self._loop = BridgeThread(self.bridge).start()
@@ -386,24 +382,13 @@ class MavlinkBridgeNode(Node):
 
     def _publish_state(self, state: VehicleState) -> None:
         assert self.physics is not None
-        config = self.physics.sensor_config
-        root_rate = math.sqrt(config.imu_rate_hz)
+        sensors = self.physics.sensor_config
         for reading in self.physics.take_readings():
             stamp = stamp_from_ns(reading.t_ns)
             if reading.kind == "odom":
                 self._publish(self.odom_publisher, odometry_message(reading.data, stamp, *self._frames))
             elif reading.kind == "imu":
-                imu = reading.data
-                message = imu_message(
-                    stamp,
-                    self._frames[1],
-                    imu.q_WB,
-                    imu.specific_force_B,
-                    imu.w_WB_B,
-                    accel_var=(config.accel_noise_density_m_s2_sqrt_hz * root_rate) ** 2,
-                    gyro_var=(config.gyro_noise_density_rad_s_sqrt_hz * root_rate) ** 2,
-                    orientation_var=config.orientation_noise_rad**2,
-                )
+                message = simulated_imu_message(stamp, self._frames[1], reading.data, sensors)
                 self._publish(self.imu_publisher, message)
             elif reading.kind == "motor_speeds":
                 self._publish(self.speeds_publisher, joint_state_from_rotor_speeds(reading.data, stamp))
@@ -415,32 +400,29 @@ class MavlinkBridgeNode(Node):
     def _on_odom(self, message: Odometry) -> None:
         result = state_from_odometry(message)
         if isinstance(result, Refusal):
-            self.refusal_counter.refuse(result.reason, f"odom: {result.detail}")
+            self.topic_refusals.refuse(result.reason, f"odom: {result.detail}")
             return
         self._odom = result
 
     def _on_motor_speeds(self, message: JointState) -> None:
-        result = rotor_speeds_from_joint_state(
-            message, self.airframe.n_rotors, 1.5 * self.airframe.rotor_speed_max_rad_s
-        )
+        limit_rad_s = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
+        result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, limit_rad_s)
         if isinstance(result, Refusal):
-            self.refusal_counter.refuse(result.reason, f"motor_speeds: {result.detail}")
+            self.topic_refusals.refuse(result.reason, f"motor_speeds: {result.detail}")
             return
         self._speeds = result.speeds_rad_s
 
     def _on_imu(self, message: Imu) -> None:
-        f = np.array(
-            [message.linear_acceleration.x, message.linear_acceleration.y, message.linear_acceleration.z]
-        )
-        w = np.array([message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z])
-        if not (np.all(np.isfinite(f)) and np.all(np.isfinite(w))):
-            self.refusal_counter.refuse("non-finite imu", f"imu: specific force {f}, rate {w}")
+        imu = imu_from_message(message)
+        if isinstance(imu, Refusal):
+            self.topic_refusals.refuse(imu.reason, f"imu: {imu.detail}")
             return
         if self._odom is None:
             return  # nothing to send before the first odometry: position and attitude are unknown
+        w_imu_B, f_imu_B = imu
         p, v, q, w_true = self._odom
-        stamp_ns = stamp_to_ns(message.header.stamp)
-        self.bridge.update_external_state(VehicleState(stamp_ns * 1e-9, p, v, q, w_true, self._speeds, f, w))
+        t_s = stamp_to_ns(message.header.stamp) * 1e-9
+        self.bridge.update_external_state(VehicleState(t_s, p, v, q, w_true, self._speeds, f_imu_B, w_imu_B))
 
     # ------------------------------------------------------------------ shutdown
 

@@ -32,47 +32,41 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Range
 
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.common import (
-    ParameterSpec,
-    Refusal,
-    RefusalCounter,
-    check_parameters,
-    declare_parameters,
-    imu_message,
+from multirotor_ros.nodes.clock import CLOCK_QOS, steady_clock
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
     odometry_message,
     pose_message,
     rotor_names,
     rotor_speeds_from_joint_state,
-    run_node,
+    simulated_imu_message,
     stamp_from_ns,
 )
+from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import NS_PER_S, Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
-from multirotor_ros.simulation.vehicle import Reading, VehicleSimulator, period_ns
+from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR, Reading, VehicleSimulator, period_ns
 
-# A command above this multiple of the top speed is taken for a unit mistake (rpm for rad/s) and refused;
-# between the top speed and this it is clamped, as an ESC saturates.
-OVERSIZED_SPEED_FACTOR = 2.0
 # Wall time a free-running (real_time_factor 0, no lockstep) simulator computes before serving callbacks.
 FREE_RUN_SLICE_S = 0.005
-CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
+def simulator_parameters(n_rotors: int) -> list[NodeParameter]:
     """The simulator's own parameters (the ``sensors.*`` ones come from the airframe's YAML)."""
     return [
-        ParameterSpec(
+        NodeParameter(
             "physics_rate_hz", 1000.0, "integration rate of the physics", "Hz", 10.0, 100000.0, read_only=True
         ),
-        ParameterSpec("publish_rate_hz", 250.0, "rate of odom and clock", "Hz", 1.0, 10000.0, read_only=True),
-        ParameterSpec(
+        NodeParameter("publish_rate_hz", 250.0, "rate of odom and clock", "Hz", 1.0, 10000.0, read_only=True),
+        NodeParameter(
             "real_time_factor",
             1.0,
             "simulated seconds per wall second; 0 = as fast as possible",
@@ -81,10 +75,10 @@ def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
             1000.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "publish_clock", False, "publish simulated time on clock (for use_sim_time nodes)", read_only=True
         ),
-        ParameterSpec(
+        NodeParameter(
             "lockstep_lead_s",
             0.004,
             "at real_time_factor 0 with publish_clock: how far simulated time "
@@ -95,7 +89,7 @@ def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
             1.0,
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "command_timeout_s",
             0.5,
             "without a motor command for this long the rotors stop "
@@ -104,19 +98,19 @@ def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
             0.0,
             60.0,
         ),
-        ParameterSpec(
+        NodeParameter(
             "motor_lag",
             True,
             "rotor speeds follow commands with the airframe's motor time constant",
             read_only=True,
         ),
-        ParameterSpec(
+        NodeParameter(
             "noise", True, "sensor noise and biases on (false: sensors read the truth)", read_only=True
         ),
-        ParameterSpec("seed", 0, "seed of the sensor noise generator", "-", 0, 2**31 - 1, read_only=True),
-        ParameterSpec("initial_x", 0.0, "initial position x, world ENU", "m", -1e4, 1e4, read_only=True),
-        ParameterSpec("initial_y", 0.0, "initial position y, world ENU", "m", -1e4, 1e4, read_only=True),
-        ParameterSpec(
+        NodeParameter("seed", 0, "seed of the sensor noise generator", "-", 0, 2**31 - 1, read_only=True),
+        NodeParameter("initial_x", 0.0, "initial position x, world ENU", "m", -1e4, 1e4, read_only=True),
+        NodeParameter("initial_y", 0.0, "initial position y, world ENU", "m", -1e4, 1e4, read_only=True),
+        NodeParameter(
             "initial_z",
             0.0,
             "initial height (0 = on the ground; above: hovering)",
@@ -125,14 +119,14 @@ def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
             1e4,
             read_only=True,
         ),
-        ParameterSpec("initial_yaw", 0.0, "initial yaw", "rad", -math.pi, math.pi, read_only=True),
-        ParameterSpec(
+        NodeParameter("initial_yaw", 0.0, "initial yaw", "rad", -math.pi, math.pi, read_only=True),
+        NodeParameter(
             "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
         ),
-        ParameterSpec(
+        NodeParameter(
             "fault_motor", 0, "rotor given fault_effectiveness from now on; 0 = no fault", "-", 0, n_rotors
         ),
-        ParameterSpec(
+        NodeParameter(
             "fault_effectiveness",
             0.0,
             "share of its thrust the faulty rotor gives; 0 = it stops",
@@ -143,10 +137,10 @@ def simulator_parameters(n_rotors: int) -> list[ParameterSpec]:
     ]
 
 
-def sensor_parameters(config: SensorConfig) -> list[ParameterSpec]:
+def sensor_parameters(config: SensorConfig) -> list[NodeParameter]:
     """``sensors.<field>`` for every field of the airframe's sensor configuration (read-only)."""
     return [
-        ParameterSpec(
+        NodeParameter(
             f"sensors.{f.name}",
             float(getattr(config, f.name)),
             f"sensor model: {f.name} (multirotor_ros/simulation/sensors.py)",
@@ -167,7 +161,7 @@ class SimulatorNode(Node):
         name = self.declare_parameter(
             "airframe",
             "x8_octorotor",
-            ParameterSpec("airframe", "", "airframe config name or YAML path", read_only=True).descriptor(),
+            NodeParameter("airframe", "", "airframe config name or YAML path", read_only=True).descriptor(),
         ).value
         self.airframe = load_airframe(name)
         n = self.airframe.n_rotors
@@ -195,7 +189,7 @@ class SimulatorNode(Node):
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         self._stamp_offset_ns = 0 if p["publish_clock"] else self.get_clock().now().nanoseconds
         self._newest_stamp_ns = 0
-        self._refusals = RefusalCounter(self.get_logger(), "motor_speed_cmd")
+        self._refusals = RefusalCounter(self.get_logger().warning, "motor_speed_cmd")
 
         self._pub = {
             "odom": self.create_publisher(Odometry, "odom", 10),
@@ -222,7 +216,7 @@ class SimulatorNode(Node):
         self._publish_period_ns = period_ns(p["publish_rate_hz"])
         # A wall-clock timer drives the physics; at real_time_factor 0 it fires continuously (period 0)
         # unless lockstep lets commands drive it, when it only watches for a controller that went silent.
-        wall = self._wall_clock()
+        wall = steady_clock()
         period = self._publish_period_ns / NS_PER_S if rate > 0 or self._lockstep else 0.0
         self.create_timer(period, self._on_timer, clock=wall)
         self.create_timer(1.0, self._publish_faults, clock=wall)
@@ -269,12 +263,6 @@ class SimulatorNode(Node):
 
     # ------------------------------------------------------------------ time
 
-    def _wall_clock(self) -> Any:
-        from rclpy.clock import Clock as RclClock
-        from rclpy.clock import ClockType
-
-        return RclClock(clock_type=ClockType.STEADY_TIME)
-
     def _on_timer(self) -> None:
         if self._lockstep is not None:
             if self._lockstep.stalled(time.monotonic()):
@@ -312,7 +300,9 @@ class SimulatorNode(Node):
                 if self._clock_pub is not None:
                     self._clock_pub.publish(Clock(clock=stamp))
             elif kind == "imu":
-                self._pub["imu"].publish(self._imu_message(stamp, data))
+                self._pub["imu"].publish(
+                    simulated_imu_message(stamp, self._frames[1], data, self.sim.sensor_config)
+                )
             elif kind == "pose":
                 self._pub["pose"].publish(pose_message(stamp, self._frames[0], *data))
             elif kind == "range":
@@ -323,20 +313,6 @@ class SimulatorNode(Node):
                 self.get_logger().warning(
                     f"no motor command for {data:.2f} s of simulated time: rotors stopped"
                 )
-
-    def _imu_message(self, stamp: Any, reading: Any) -> Imu:
-        c = self.sim.sensor_config
-        root_rate = math.sqrt(c.imu_rate_hz)
-        return imu_message(
-            stamp,
-            self._frames[1],
-            reading.q_WB,
-            reading.specific_force_B,
-            reading.w_WB_B,
-            accel_var=(c.accel_noise_density_m_s2_sqrt_hz * root_rate) ** 2,
-            gyro_var=(c.gyro_noise_density_rad_s_sqrt_hz * root_rate) ** 2,
-            orientation_var=c.orientation_noise_rad**2,
-        )
 
     def _range_message(self, stamp: Any, distance: float) -> Range:
         c = self.sim.sensor_config

@@ -245,7 +245,8 @@ class VehicleSimulator:
         if deadline is not None and self.t_ns >= deadline:
             self.watchdog_tripped = True
             self.command_rad_s = np.full(self.airframe.n_rotors, self.airframe.rotor_speed_min_rad_s)
-            readings.append(Reading("watchdog", self.t_ns, (self.t_ns - self._last_command_ns) / NS_PER_S))
+            last_command_ns = deadline - self.command_timeout_ns
+            readings.append(Reading("watchdog", self.t_ns, (self.t_ns - last_command_ns) / NS_PER_S))
 
     def _sample_due(self, readings: list[Reading]) -> None:
         for kind, schedule in self._schedules.items():
