@@ -8,6 +8,7 @@ import pytest
 from test_ident_flights import effect, flight, flight_csv
 
 from multirotor_ros.cli import main as cli_main
+from multirotor_ros.discrepancy import DiscrepancySettings
 from multirotor_ros.discrepancy.workflow import find_discrepancy
 from multirotor_ros.ident.identify import identify
 from multirotor_ros.ident.samples import NotEnoughData
@@ -51,6 +52,22 @@ def test_names_a_hidden_quadratic_drag_with_its_parameters(quadratic_report):
     best = quadratic_report.candidates[0]
     assert best.effect == "quadratic_drag" and best.significant and best.z_statistic >= 3
     assert "horizontal speed" in " ".join(w["regime"] for w in quadratic_report.where)
+
+
+def test_effects_with_a_parameter_per_rotor_are_not_testable_with_the_reason(quadratic_report):
+    # rotor_effectiveness: translational motion sees only the rotors' combined thrust.
+    assert "per rotor" in quadratic_report.not_testable["rotor_effectiveness"]
+    assert all(c.effect != "rotor_effectiveness" for c in quadratic_report.candidates)
+
+
+def test_settings_set_the_thresholds():
+    log = flight(
+        "x8_octorotor", (effect("quadratic_drag", c_x=0.4, c_y=0.4, c_z=0.2),), duration_s=30.0, seed=11
+    )
+    report = find_discrepancy("x8_octorotor", log, [], settings=DiscrepancySettings(z_critical=1e6, folds=4))
+    assert report.missing_effect == "none"
+    assert "needs z >= 1e+06" in report.explanation[0]
+    assert report.split.startswith("4-fold")
 
 
 @pytest.mark.parametrize("kept", ["position and velocity", "position alone"])

@@ -6,9 +6,11 @@
     report.to_json()            # report.json of shared/spec/interfaces.md
     report.write("out_dir")     # report.json, PNG plots, self-contained report.html
 
-See :mod:`.workflow` for the method, :mod:`.regimes` for where the error is, :mod:`.report` for output.
+See :mod:`.workflow` for the method, :mod:`.regimes` for where the error is, :mod:`.report` for output,
+:mod:`.settings` for the thresholds.
 """
 
+from multirotor_ros.discrepancy.settings import DiscrepancySettings
 from multirotor_ros.discrepancy.workflow import Candidate, DiscrepancyReport, find_discrepancy
 
-__all__ = ["Candidate", "DiscrepancyReport", "find_discrepancy"]
+__all__ = ["Candidate", "DiscrepancyReport", "DiscrepancySettings", "find_discrepancy"]

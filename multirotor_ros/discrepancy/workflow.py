@@ -1,15 +1,17 @@
 """Find where a model and a log disagree, name the missing effect, add it, and show the gap shrink.
 
-:func:`find_discrepancy` does, for any log and airframe (seed 1's story made automatic):
+:func:`find_discrepancy` does, for any log and airframe (seed 1's story made automatic), in stages that
+read top to bottom in its body; the thresholds are :class:`~.settings.DiscrepancySettings` (defaults
+quoted here):
 
 1. Runs the baseline model (the airframe with ``baseline_effects``, parameters as configured) on the
    log's measured attitude, rotor speeds, velocity and height, and compares its acceleration with the
    measured one, and its position over short re-initialised horizons (:mod:`multirotor_ros.ident.metrics`).
 2. Locates the disagreement per axis, per time window and per regime (:mod:`.regimes`).
-3. Fits every translational effect of effects.md that the baseline lacks (its own parameters; the
-   baseline stays as configured, k_f included) and scores it on data it was not fitted on: 5-fold
-   cross-validation over interleaved blocks of about 2 s (each block is predicted by the fit on the
-   other four folds). The score is the held-out share of the acceleration error it removes.
+3. Fits every translational effect of effects.md that the baseline lacks and this log and airframe can
+   test (its own parameters; the baseline stays as configured, k_f included) and scores it on data it was
+   not fitted on: 5-fold cross-validation over interleaved blocks of about 2 s (each block is predicted by
+   the fit on the other four folds). The score is the held-out share of the acceleration error it removes.
    An effect is *significant* when its held-out improvement stands beyond noise (z >= 3, the noise's
    variance estimated block by block so that residuals correlated within a block count once,
    :func:`improvement_z`) and its force is not negligible: it reaches 0.05 m/s^2 RMS over some second of
@@ -22,14 +24,18 @@
    part of the flight, where drag linear in speed departs from drag quadratic in speed) is the evidence.
    If neither adds to the other in the translational data, the torques decide: the fits never saw the
    roll and pitch torque balance, and a mass offset leaves it as modelled while a thrust change per rotor
-   does not. If that is not conclusive either, the report says the log cannot separate them
-   (``ambiguous_with``) and names the higher score.
+   does not (each effect's ``torque_signature`` says how). If that is not conclusive either, the report
+   says the log cannot separate them (``ambiguous_with``), names the higher score and the regimes
+   (each effect's ``regime``) a flight should cover to tell them apart.
 5. The named effect is added and fitted on the whole log; the gap before and after is reported.
    ``max_effects`` > 1 repeats 3-5 with the named effects in the model (their linear parameters refitted
    with each linear candidate, all of them together after each round).
 
-``none`` is named when no candidate is significant; effects that this log could not reveal (their
-parameters not identifiable, e.g. drag in a hover) are listed with the reason.
+``none`` is named when no candidate is significant. Effects that this log could not reveal (their
+parameters not identifiable, e.g. drag in a hover), that the airframe cannot have (``not_applicable``) or
+that need what the log lacks (``log_needs``) are listed with the reason, and so are effects with one
+parameter per rotor (``rotor_effectiveness``): the translational motion shows only the rotors' combined
+thrust, and telling the rotors apart needs the torque balance, which this workflow does not fit.
 """
 
 from __future__ import annotations
@@ -42,31 +48,30 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from multirotor_ros.discrepancy.regimes import RegimeVariable, concentration, error_windows, regime_variables
+from multirotor_ros.discrepancy.regimes import concentration, error_windows, regime_variables
+from multirotor_ros.discrepancy.settings import DiscrepancySettings
 from multirotor_ros.ident.fit import FitResult, Fitter, acceleration_residual, fit_parameters, torque_residual
 from multirotor_ros.ident.metrics import horizon_position_error, model_acceleration, per_axis
-from multirotor_ros.ident.parameters import ParameterRef, neutral_effect_spec
+from multirotor_ros.ident.parameters import ParameterRef
 from multirotor_ros.ident.regressors import parameter_value
 from multirotor_ros.ident.samples import FlightSamples, NotEnoughData, load_samples
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
-from multirotor_ros.model.effects import EFFECTS, TRANSLATIONAL_EFFECTS, Effect, make_effect
+from multirotor_ros.model.effects import EFFECTS, TRANSLATIONAL_EFFECTS, Effect, effect_class, make_effect
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
 
 Progress = Callable[[str], None]
-Z_CRITICAL = 3.0
-NEGLIGIBLE_ACCELERATION_M_S2 = 0.05
-FOLDS = 5
-MIN_BLOCKS = 10
-MAX_BLOCK_S = 2.0
-MIN_BLOCK_S = 0.5
-LOOKALIKE_SCORE_RATIO = 0.5
-# Effects smaller than this must explain more than a constant accelerometer bias could (a few mg, 0.05 m/s^2,
-# is what good IMUs leave after calibration; three times that is beyond any bias one would fly with).
-BIAS_CHECK_BELOW_M_S2 = 0.15
-MAX_LOOKALIKES = 2
+
+# What an effect's ``log_needs`` may ask of a log: whether it has it, and how the report says it does not.
+_LOG_PROVISIONS: dict[str, tuple[Callable[[FlightSamples], bool], str]] = {
+    "height": (
+        lambda samples: samples.height_known,
+        "the log has no measured height (no position, no range column)",
+    ),
+}
 
 
 @dataclass
@@ -86,6 +91,11 @@ class Candidate:
     not_identifiable: dict[str, str] = field(default_factory=dict)
     verdict: str = ""
     ambiguous_with: list[str] = field(default_factory=list)
+
+    @property
+    def fitted_any(self) -> bool:
+        """Whether the log identified at least one of the effect's parameters."""
+        return len(self.not_identifiable) < len(self.parameters)
 
     def to_json(self) -> dict[str, Any]:
         """The report.json entry (interfaces.md keys first)."""
@@ -107,7 +117,13 @@ class Candidate:
 
 
 def _json_parameters(values: Mapping[str, float]) -> dict[str, float | int]:
-    return {k: (int(round(v)) if k == "motor" else float(v)) for k, v in values.items()}
+    """Parameter values for report.json: a discrete one (a rotor's number) as an integer."""
+    return {name: (int(round(v)) if _is_discrete(name) else float(v)) for name, v in values.items()}
+
+
+def _is_discrete(name: str) -> bool:
+    # Parameter names are unique across effects.md: report.json lists the named effects' ones flat.
+    return any(p.discrete and p.name == name for cls in EFFECTS.values() for p in cls.PARAMETERS)
 
 
 @dataclass
@@ -182,7 +198,7 @@ class DiscrepancyReport:
 class Folds:
     """Interleaved blocks: block b of ``block_s`` seconds belongs to fold b mod k."""
 
-    block: FloatArray  # (T,) block index of each sample
+    block: NDArray[np.intp]  # (T,) block index of each sample
     n_blocks: int
     k: int
     block_s: float
@@ -201,20 +217,20 @@ class Folds:
         )
 
 
-def make_folds(samples: FlightSamples, k: int = FOLDS) -> Folds:
-    """Blocks of about 2 s (shorter for short logs, so that there are at least MIN_BLOCKS)."""
+def make_folds(samples: FlightSamples, settings: DiscrepancySettings) -> Folds:
+    """Blocks of ``max_block_s`` (shorter for short logs, so that there are at least ``min_blocks``)."""
     duration = samples.duration_s
-    block_s = float(np.clip(duration / (4 * MIN_BLOCKS), MIN_BLOCK_S, MAX_BLOCK_S))
+    min_blocks = settings.min_blocks
+    block_s = float(np.clip(duration / (4 * min_blocks), settings.min_block_s, settings.max_block_s))
     block = np.floor((samples.t - samples.t[0]) / block_s).astype(int)
     used = np.unique(block[samples.valid])
-    if used.size < MIN_BLOCKS:
+    if used.size < min_blocks:
         raise NotEnoughData(
             f"{samples.source}: {duration:.1f} s of usable flight; the discrepancy workflow needs at least "
-            f"{MIN_BLOCKS * MIN_BLOCK_S:g} s ({MIN_BLOCKS} blocks) to fit candidates on one part of the log "
-            "and "
-            "test them on another"
+            f"{min_blocks * settings.min_block_s:g} s ({min_blocks} blocks) to fit candidates on one part of "
+            "the log and test them on another"
         )
-    return Folds(block, int(block.max()) + 1, k, block_s)
+    return Folds(block, int(block.max()) + 1, settings.folds, block_s)
 
 
 def block_sse(residual: FloatArray, rows: FloatArray, folds: Folds) -> FloatArray:
@@ -244,23 +260,26 @@ def improvement_z(before: FloatArray, after: FloatArray, rows: FloatArray, folds
     return gain / spread
 
 
-def _without_body_bias(samples: FlightSamples, *residuals: FloatArray) -> list[FloatArray]:
-    """Each residual minus its least-squares fit by a constant body-frame acceleration (an IMU bias)."""
+def _without_body_bias(
+    samples: FlightSamples, before: FloatArray, after: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Both residuals minus their least-squares fits by a constant body-frame acceleration (an IMU bias)."""
     rows = samples.valid
     # A body-frame bias b shows in world as R b: stacked over samples, the rows of each R.
     basis = samples.R_WB[rows].reshape(-1, 3)
-    out = []
-    for residual in residuals:
+
+    def unbiased(residual: FloatArray) -> FloatArray:
         values = np.nan_to_num(residual[rows]).reshape(-1)
         bias = np.linalg.lstsq(basis, values, rcond=None)[0]
         corrected = np.array(residual, copy=True)
         corrected[rows] = (values - basis @ bias).reshape(-1, 3)
-        out.append(corrected)
-    return out
+        return corrected
+
+    return unbiased(before), unbiased(after)
 
 
 def peak_window_rms(
-    contribution: FloatArray, samples: FlightSamples, rows: FloatArray, window_s: float = 1.0
+    contribution: FloatArray, samples: FlightSamples, rows: FloatArray, window_s: float
 ) -> float:
     """Largest RMS over windows of ``window_s`` of a per-sample vector (T, 3) on ``rows``."""
     index = np.floor((samples.t - samples.t[0]) / window_s).astype(int)
@@ -294,24 +313,40 @@ class Trial:
 
 
 class Workflow:
-    """The state shared by the steps of :func:`find_discrepancy`."""
+    """The state shared by the stages of :func:`find_discrepancy`: the log, the baseline, the folds."""
 
-    def __init__(self, samples: FlightSamples, baseline: Model, folds: Folds, progress: Progress | None):
+    def __init__(
+        self,
+        samples: FlightSamples,
+        baseline: Model,
+        settings: DiscrepancySettings,
+        progress: Progress | None,
+        notes: list[str],
+    ):
         self.samples = samples
         self.baseline = baseline
-        self.folds = folds
+        self.airframe = baseline.airframe
+        self.settings = settings
         self.progress = progress
-        self.trials: dict[tuple[str, ...], Trial] = {}
+        self.notes = notes
         self.valid = samples.valid
+        self.folds = make_folds(samples, settings)
+        self.used_blocks = np.bincount(self.folds.block[self.valid], minlength=self.folds.n_blocks) > 0
+        self.variables = regime_variables(samples, self.airframe)
+        self.trials: dict[tuple[tuple[str, ...], tuple[str, ...]], Trial] = {}
 
     def _say(self, message: str) -> None:
         if self.progress is not None:
             self.progress(message)
 
+    def parameter_names(self, effect_id: str) -> list[str]:
+        """The names of an effect's parameters on this airframe."""
+        return [p.name for p in effect_class(effect_id).parameter_list(self.airframe.n_rotors)]
+
     def model_with(self, effects: Sequence[str], start: Mapping[str, Mapping[str, float]]) -> Model:
         """The baseline plus ``effects`` at their ``start`` values."""
         specs = list(self.baseline.effects) + [make_effect({"id": e, **start[e]}) for e in effects]
-        return Model(self.baseline.airframe, specs, self.baseline.gravity_m_s2)
+        return Model(self.airframe, specs, self.baseline.gravity_m_s2)
 
     def residual_with(self, effects: Sequence[str], start: Mapping[str, Mapping[str, float]]) -> FloatArray:
         """Acceleration residual of :meth:`model_with`."""
@@ -319,7 +354,7 @@ class Workflow:
 
     def joint_fit(self, effects: Sequence[str], start: Mapping[str, Mapping[str, float]]) -> FitResult:
         """All parameters of ``effects`` fitted together on the whole log (no cross-validation)."""
-        free = [(e, n) for e in effects for n in EFFECTS[e].parameter_units]
+        free = [(e, n) for e in effects for n in self.parameter_names(e)]
         return fit_parameters(self.samples, self.model_with(effects, start), free)
 
     def trial(
@@ -335,32 +370,34 @@ class Workflow:
         key = (tuple(sorted(effects)), tuple(sorted(fixed)))
         if key in self.trials:
             return self.trials[key]
-        airframe = self.baseline.airframe
+        n_rotors = self.airframe.n_rotors
         specs: list[Effect] = list(self.baseline.effects)
         specs += [make_effect({"id": effect_id, **start[effect_id]}) for effect_id in fixed]
         free: list[ParameterRef] = []
         for effect_id in effects:
-            values = dict(start.get(effect_id) or neutral_effect_spec(effect_id, airframe))
+            values = dict(start.get(effect_id) or effect_class(effect_id).neutral_parameters(n_rotors))
             specs.append(make_effect({"id": effect_id, **values}))
-            free += [(effect_id, name) for name in EFFECTS[effect_id].parameter_units]
+            free += [(effect_id, name) for name in self.parameter_names(effect_id)]
         candidates_free = list(free)
         named_held: dict[ParameterRef, float] = {}
-        if all(not EFFECTS[e].nonlinear_parameters for e in effects):
+        if all(p.linear for e in effects for p in effect_class(e).parameter_list(n_rotors)):
             for effect_id in fixed:
-                for name in EFFECTS[effect_id].parameter_units:
+                for name in self.parameter_names(effect_id):
                     free.append((effect_id, name))
-                    if name in EFFECTS[effect_id].nonlinear_parameters:
+                    if not effect_class(effect_id).parameter(name).linear:
                         named_held[(effect_id, name)] = float(start[effect_id][name])
-        model = Model(airframe, specs, self.baseline.gravity_m_s2)
+        model = Model(self.airframe, specs, self.baseline.gravity_m_s2)
         self._say(f"fitting {' + '.join(effects)}")
         full = fit_parameters(self.samples, model, free, held=named_held)
         held = {**named_held, **{ref: parameter_value(model, ref) for ref in full.not_identifiable}}
-        if ("actuator_fault", "effectiveness") in held:
-            held.update({(e, n): parameter_value(model, (e, n)) for e, n in free if e == "actuator_fault"})
+        for effect_id, name in list(held):
+            # A parameter that is linear only once its effect's others are chosen (a fault's effectiveness),
+            # held at its start, leaves those others nothing to choose: the folds hold them too.
+            if effect_class(effect_id).parameter(name).linear_given_others:
+                held.update({ref: parameter_value(model, ref) for ref in free if ref[0] == effect_id})
         heldout = np.full((self.samples.t.size, 3), np.nan)
-        all_held = all(ref in held for ref in candidates_free)
         in_sample = acceleration_residual(self.samples, full.model)
-        if all_held:
+        if all(ref in held for ref in candidates_free):
             heldout[:] = in_sample
         else:
             for fold in range(self.folds.k):
@@ -370,7 +407,12 @@ class Workflow:
                 # Folds start from the whole-log fit and search its non-linear parameters nearby: the same
                 # optimum when the training data agree, at a fraction of the cost of a full search.
                 fitter = Fitter(
-                    self.samples, full.model, free, rows=self.valid & ~test, held=held, weights=full.weights
+                    self.samples,
+                    full.model,
+                    free,
+                    rows=self.valid & ~test,
+                    held=held,
+                    weights=full.weights,
                 )
                 fitted = fitter.run(refine=False, local=True)
                 heldout[test] = acceleration_residual(self.samples, fitted)[test]
@@ -379,10 +421,114 @@ class Workflow:
         return trial
 
 
-def _verdict_params(trial: Trial, effect_id: str) -> tuple[dict[str, float | None], dict[str, str]]:
-    std = {name: trial.fit.std.get((effect_id, name)) for name in EFFECTS[effect_id].parameter_units}
-    reasons = {name: why for (e, name), why in trial.fit.not_identifiable.items() if e == effect_id}
-    return std, reasons
+# ----------------------------------------------------------------------------------------------
+# the stages of find_discrepancy
+
+
+@dataclass
+class Disagreement:
+    """How the baseline misses the log: where, and the reference the candidates are scored against."""
+
+    residual: FloatArray  # (T, 3) measured minus modelled acceleration [m/s^2]
+    mse: FloatArray  # (3,) mean square per world axis [(m/s^2)^2]
+    position_mse: FloatArray | None  # (3,) over 1 s horizons [m^2]; None without a measured position
+    where: list[dict[str, Any]]
+    regimes: list[dict[str, Any]]
+
+
+@dataclass
+class Naming:
+    """What the rounds of candidate fits found."""
+
+    not_testable: dict[str, str]
+    named: list[str] = field(default_factory=list)
+    start: dict[str, dict[str, float]] = field(default_factory=dict)  # the named effects' fitted values
+    candidates: list[Candidate] = field(default_factory=list)
+    explanation: list[str] = field(default_factory=list)
+
+
+@dataclass
+class FinalFit:
+    """The named effects fitted together on the whole log (the baseline when none is named)."""
+
+    model: Model
+    parameters: dict[str, float]
+    std: dict[str, float | None]
+    residual: FloatArray  # (T, 3) [m/s^2]
+    warnings: list[str]
+
+
+def find_discrepancy(
+    airframe: Airframe | str | Path,
+    log: FlightLog | str | Path,
+    baseline_effects: Sequence[str | Mapping[str, Any] | Effect] | None = None,
+    max_effects: int = 1,
+    progress: Progress | None = None,
+    candidates: Sequence[str] | None = None,
+    accelerometer_bias: bool = True,
+    settings: DiscrepancySettings | None = None,
+) -> DiscrepancyReport:
+    """Run the workflow of the module docstring; ``baseline_effects`` None = the airframe's own list.
+
+    ``candidates`` restricts the effects tried (default: every translational effect the baseline lacks).
+    ``accelerometer_bias``: when the log measures acceleration, a constant bias along body x and y is
+    removed from every comparison as a nuisance (:meth:`FlightSamples.estimate_accelerometer_bias`), so
+    that an IMU's few mg are not taken for a steady horizontal force.
+    ``settings``: the thresholds (default :class:`DiscrepancySettings`).
+    Raises FlightLogError, LogMismatch or NotEnoughData (all ValueError) with a message naming what is wrong.
+    """
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def lap(phase: str) -> None:
+        timings[phase] = time.perf_counter() - started
+
+    settings = DiscrepancySettings() if settings is None else settings
+    if not isinstance(airframe, Airframe):
+        airframe = load_airframe(airframe)
+    if max_effects < 1:
+        raise ValueError(f"max_effects must be >= 1, got {max_effects}")
+    samples = load_samples(log, airframe, settings=settings.fit)
+    if accelerometer_bias:
+        samples.estimate_accelerometer_bias(airframe.mass_kg)
+    lap("load")
+    workflow = _baseline_workflow(samples, airframe, baseline_effects, settings, progress)
+    disagreement = _where_the_model_disagrees(workflow)
+    lap("baseline")
+    pool, not_testable = _candidate_pool(workflow, candidates)
+    naming = _name_effects(workflow, pool, Naming(not_testable), disagreement.residual, max_effects)
+    lap("candidates")
+    final = _fit_named(workflow, naming, disagreement)
+    report = _report(workflow, disagreement, naming, final)
+    lap("total")
+    report.timings_s = timings
+    return report
+
+
+def _baseline_workflow(
+    samples: FlightSamples,
+    airframe: Airframe,
+    baseline_effects: Sequence[str | Mapping[str, Any] | Effect] | None,
+    settings: DiscrepancySettings,
+    progress: Progress | None,
+) -> Workflow:
+    """The baseline model, its effects without configured values fitted to the log first."""
+    effects, unconfigured = _resolve_baseline(airframe, baseline_effects)
+    baseline = Model(airframe, effects)
+    notes = list(samples.notes)
+    if samples.nuisance is not None:
+        notes.append(
+            "a constant accelerometer bias along body x and y is fitted alongside every model (a nuisance, "
+            "not an effect): a steady horizontal force is told from it by the vehicle's changes of heading"
+        )
+    if unconfigured:
+        free = [(e, p.name) for e in unconfigured for p in effect_class(e).parameter_list(airframe.n_rotors)]
+        baseline = fit_parameters(samples, baseline, free, progress=progress).model
+        notes.append(
+            f"baseline effect(s) {', '.join(unconfigured)} have no values in {airframe.name}'s "
+            "configuration: they were fitted to this log first"
+        )
+    return Workflow(samples, baseline, settings, progress, notes)
 
 
 def _resolve_baseline(
@@ -401,204 +547,243 @@ def _resolve_baseline(
             if entry in configured:
                 effects.append(make_effect(configured[entry]))
             else:
-                effects.append(make_effect({"id": entry, **neutral_effect_spec(entry, airframe)}))
+                neutral = EFFECTS[entry].neutral_parameters(airframe.n_rotors)
+                effects.append(make_effect({"id": entry, **neutral}))
                 unconfigured.append(entry)
         else:
             effects.append(make_effect(entry))
     return effects, unconfigured
 
 
-def find_discrepancy(
-    airframe: Airframe | str | Path,
-    log: FlightLog | str | Path,
-    baseline_effects: Sequence[str | Mapping[str, Any] | Effect] | None = None,
-    max_effects: int = 1,
-    progress: Progress | None = None,
-    candidates: Sequence[str] | None = None,
-    accelerometer_bias: bool = True,
-) -> DiscrepancyReport:
-    """Run the workflow of the module docstring; ``baseline_effects`` None = the airframe's own list.
-
-    ``candidates`` restricts the effects tried (default: every translational effect the baseline lacks).
-    ``accelerometer_bias``: when the log measures acceleration, a constant bias along body x and y is
-    removed from every comparison as a nuisance (:meth:`FlightSamples.estimate_accelerometer_bias`), so
-    that an IMU's few mg are not taken for a steady horizontal force.
-    Raises FlightLogError, LogMismatch or NotEnoughData (all ValueError) with a message naming what is wrong.
-    """
-    clock = time.perf_counter()
-    timings: dict[str, float] = {}
-    if not isinstance(airframe, Airframe):
-        airframe = load_airframe(airframe)
-    if max_effects < 1:
-        raise ValueError(f"max_effects must be >= 1, got {max_effects}")
-    samples = load_samples(log, airframe)
-    if accelerometer_bias:
-        samples.estimate_accelerometer_bias(airframe.mass_kg)
-    timings["load"] = time.perf_counter() - clock
-    effects, unconfigured = _resolve_baseline(airframe, baseline_effects)
-    baseline = Model(airframe, effects)
-    notes = list(samples.notes)
-    warnings = list(samples.warnings)
-    if samples.nuisance is not None:
-        notes.append(
-            "a constant accelerometer bias along body x and y is fitted alongside every model (a nuisance, "
-            "not an effect): a steady horizontal force is told from it by the vehicle's changes of heading"
-        )
-    if unconfigured:
-        free = [(e, n) for e in unconfigured for n in EFFECTS[e].parameter_units]
-        baseline = fit_parameters(samples, baseline, free, progress=progress).model
-        notes.append(
-            f"baseline effect(s) {', '.join(unconfigured)} have no values in {airframe.name}'s "
-            "configuration: "
-            "they were fitted to this log first"
-        )
-    folds = make_folds(samples)
-    valid = samples.valid
-    used_blocks = np.bincount(folds.block[valid], minlength=folds.n_blocks) > 0
-    variables = regime_variables(samples, airframe)
-    residual_before = acceleration_residual(samples, baseline)
-    mse_before = np.mean(residual_before[valid] ** 2, axis=0)
-    position_before, _ = horizon_position_error(samples, model_acceleration(samples, baseline))
+def _where_the_model_disagrees(workflow: Workflow) -> Disagreement:
+    """The baseline's error per axis, over 1 s horizons of position, per time window and per regime."""
+    samples, valid, settings = workflow.samples, workflow.valid, workflow.settings
+    residual = acceleration_residual(samples, workflow.baseline)
+    position_mse, _ = horizon_position_error(samples, model_acceleration(samples, workflow.baseline))
+    window_s = max(workflow.folds.block_s, samples.duration_s / settings.where_windows_per_log)
     where = error_windows(
-        samples, residual_before, variables, window_s=max(folds.block_s, samples.duration_s / 30)
+        samples, residual, workflow.variables, window_s=window_s, limit=settings.where_limit
     )
-    squared_before = np.sum(residual_before**2, axis=1)
+    worst_regimes = concentration(np.sum(residual**2, axis=1), valid, workflow.variables)
     regimes = [
         {"regime": c.text, "variable": c.variable, "error_ratio": c.ratio, "share_of_error": c.share}
-        for c in concentration(squared_before, valid, variables)[:4]
+        for c in worst_regimes[: settings.regimes_listed]
     ]
-    timings["baseline"] = time.perf_counter() - clock
+    return Disagreement(residual, np.mean(residual[valid] ** 2, axis=0), position_mse, where, regimes)
 
-    baseline_ids = [e.id for e in baseline.effects]
-    pool = [e for e in (candidates or TRANSLATIONAL_EFFECTS) if e not in baseline_ids]
+
+def _candidate_pool(workflow: Workflow, candidates: Sequence[str] | None) -> tuple[list[str], dict[str, str]]:
+    """The effects to try (not already in the baseline), and why the others cannot be tested here."""
+    in_baseline = workflow.baseline.effect_ids
+    pool: list[str] = []
     not_testable: dict[str, str] = {}
-    if "coaxial_loss" in pool and not airframe.lower_rotor_mask.any():
-        pool.remove("coaxial_loss")
-        not_testable["coaxial_loss"] = f"{airframe.name} has no coaxial rotors"
-    if "ground_effect" in pool and not samples.height_known:
-        pool.remove("ground_effect")
-        not_testable["ground_effect"] = "the log has no measured height (no position, no range column)"
-    if "motor_lag" in pool and baseline.rotor_time_constant_s is not None:
-        pool.remove("motor_lag")
+    for effect_id in candidates or TRANSLATIONAL_EFFECTS:
+        if effect_id in in_baseline:
+            continue
+        reason = _why_untestable(effect_class(effect_id), workflow)
+        if reason is None:
+            pool.append(effect_id)
+        else:
+            not_testable[effect_id] = reason
+    return pool, not_testable
 
-    workflow = Workflow(samples, baseline, folds, progress)
-    named: list[str] = []
-    start: dict[str, dict[str, float]] = {}
-    all_candidates: list[Candidate] = []
-    explanation: list[str] = []
-    round_residual = residual_before
-    round_in_sample = residual_before
+
+def untestable_by_design(cls: type[Effect]) -> str | None:
+    """Why this workflow cannot fit an effect on any log, or None."""
+    per_rotor = cls.PER_ROTOR_PARAMETER
+    if per_rotor is None:
+        return None
+    return (
+        f"one {per_rotor.name}_i per rotor: the translational motion shows only the rotors' combined "
+        "thrust, and the torque balance that tells the rotors apart is not fitted by this workflow"
+    )
+
+
+def _why_untestable(cls: type[Effect], workflow: Workflow) -> str | None:
+    """Why an effect cannot be a candidate on this airframe and log, or None."""
+    by_design = untestable_by_design(cls)
+    if by_design is not None:
+        return by_design
+    inapplicable = cls.not_applicable(workflow.airframe)
+    if inapplicable is not None:
+        return inapplicable
+    lacking = [
+        missing
+        for has, missing in (_LOG_PROVISIONS[need] for need in cls.log_needs)
+        if not has(workflow.samples)
+    ]
+    return "; ".join(lacking) if lacking else None
+
+
+def _name_effects(
+    workflow: Workflow, pool: list[str], naming: Naming, reference: FloatArray, max_effects: int
+) -> Naming:
+    """Rounds of candidate fits; each names the best significant candidate or stops (module docstring 3-5).
+
+    ``reference``: the acceleration residual the round's candidates are scored against (the baseline's,
+    then the model with the named effects at their fitted values, where nothing is fitted, so held-out and
+    in-sample residuals are the same).
+    """
+    settings = workflow.settings
     for round_number in range(1, max_effects + 1):
-        before_blocks = block_sse(round_residual, valid, folds)
-        round_total = float(before_blocks[used_blocks].sum())
-        scored: list[tuple[Candidate, Trial]] = []
-        for effect_id in pool:
-            if effect_id in named:
-                continue
-            # Later rounds keep the named effects at their fitted values while candidates are screened (the
-            # named ones are refitted jointly with the winner at the end).
-            trial = workflow.trial([effect_id], start, fixed=named)
-            after_blocks = block_sse(trial.heldout, valid, folds)
-            score = 1.0 - float(after_blocks[used_blocks].sum()) / round_total if round_total > 0 else 0.0
-            z_stat = improvement_z(round_residual, trial.heldout, valid, folds)
-            contribution = round_in_sample - trial.in_sample
-            peak = peak_window_rms(contribution, samples, valid)
-            std, reasons = _verdict_params(trial, effect_id)
-            fitted_any = any(
-                (effect_id, n) not in trial.fit.not_identifiable for n in EFFECTS[effect_id].parameter_units
-            )
-            significant = bool(
-                fitted_any and z_stat >= Z_CRITICAL and score > 0 and peak >= NEGLIGIBLE_ACCELERATION_M_S2
-            )
-            bias_like = False
-            if significant and peak < BIAS_CHECK_BELOW_M_S2:
-                # A small effect must also explain something an accelerometer bias cannot.
-                z_unbiased = improvement_z(
-                    *_without_body_bias(samples, round_residual, trial.heldout), valid, folds
-                )
-                bias_like = z_unbiased < Z_CRITICAL
-                significant = not bias_like
-            gain = np.sum(np.nan_to_num(round_residual) ** 2 - np.nan_to_num(trial.heldout) ** 2, axis=1)
-            where_gain = concentration(np.maximum(gain, 0.0), valid, variables)
-            regime = (
-                f"explains most where {where_gain[0].text}"
-                if where_gain and score > 0
-                else "explains nothing"
-            )
-            candidate = Candidate(
-                effect=effect_id,
-                round=round_number,
-                parameters=trial.parameters(effect_id),
-                std=std,
-                mse_after=per_axis(np.mean(trial.heldout[valid] ** 2, axis=0)),
-                score=score,
-                z_statistic=z_stat,
-                peak_contribution_m_s2=peak,
-                significant=significant,
-                regime=regime,
-                not_identifiable=reasons,
-            )
-            candidate.verdict = _verdict(candidate, fitted_any, bias_like)
-            if not fitted_any and round_number == 1:
-                not_testable[effect_id] = "; ".join(reasons.values())
-            scored.append((candidate, trial))
-        scored.sort(key=lambda item: -item[0].score)
+        remaining = [e for e in pool if e not in naming.named]
+        scored = _screen(workflow, remaining, naming, reference, round_number)
         significant = [item for item in scored if item[0].significant]
+        naming.candidates += [candidate for candidate, _ in scored]
         if not significant:
-            all_candidates += [c for c, _ in scored]
             if round_number == 1:
-                explanation.append(
+                naming.explanation.append(
                     "No candidate effect explains a significant part of the disagreement beyond noise on "
-                    "held-out data "
-                    f"(needs z >= {Z_CRITICAL:g} and a force reaching {NEGLIGIBLE_ACCELERATION_M_S2} m/s^2): "
-                    "missing effect: none."
+                    f"held-out data (needs z >= {settings.z_critical:g} and a force reaching "
+                    f"{settings.negligible_acceleration_m_s2} m/s^2): missing effect: none."
                 )
             else:
-                explanation.append(f"Round {round_number}: no further effect is significant; stopping.")
+                naming.explanation.append(
+                    f"Round {round_number}: no further effect is significant; stopping."
+                )
             break
-        best, best_trial = significant[0]
-        best, best_trial, lookalike_words = _separate_lookalikes(
-            workflow, best, best_trial, significant, named, start, round_residual, variables
-        )
-        all_candidates += [c for c, _ in scored]
-        named.append(best.effect)
-        start[best.effect] = best_trial.parameters(best.effect)
-        if len(named) > 1:
-            # The named effects refitted together: an earlier one fitted alone absorbed part of the later one.
-            joint = workflow.joint_fit(named, start)
-            start.update(
-                {e: {n: float(v) for n, v in joint.model.effect(e).parameters.items()} for e in named}
-            )
-        explanation.append(
+        best, best_trial, lookalike_words = _separate_lookalikes(workflow, significant, naming)
+        _add_named(workflow, naming, best.effect, best_trial)
+        naming.explanation.append(
             f"Round {round_number}: {best.effect} removes {100 * best.score:.1f} % of the acceleration error "
-            "on held-out "
-            f"data (z = {best.z_statistic:.1f}; its force reaches {best.peak_contribution_m_s2:.3g} m/s^2); "
-            f"it {best.regime}."
+            f"on held-out data (z = {best.z_statistic:.1f}; its force reaches "
+            f"{best.peak_contribution_m_s2:.3g} m/s^2); it {best.regime}."
         )
-        explanation += lookalike_words
-        # The next round's reference: the model with the named effects at their fitted values (nothing is
-        # fitted in it, so held-out and in-sample residuals are the same).
-        round_residual = round_in_sample = workflow.residual_with(named, start)
-        pool = [e for e in pool if e != best.effect]
-    timings["candidates"] = time.perf_counter() - clock
+        naming.explanation += lookalike_words
+        reference = workflow.residual_with(naming.named, naming.start)
+    return naming
 
-    if named:
-        final_trial = workflow.trial(named, start)
-        final_model = final_trial.fit.model
-        parameters = {name: float(v) for e in named for name, v in final_trial.parameters(e).items()}
-        std = {name: final_trial.fit.std.get((e, name)) for e in named for name in EFFECTS[e].parameter_units}
-        for e in named:
-            for name in EFFECTS[e].parameter_units:
-                why = final_trial.fit.not_identifiable.get((e, name))
-                if why:
-                    warnings.append(f"{e}.{name}: {why}")
-        residual_after = final_trial.in_sample
-    else:
-        final_model = baseline
-        parameters, std = {}, {}
-        residual_after = residual_before
-    mse_after = np.mean(residual_after[valid] ** 2, axis=0)
-    position_after, _ = horizon_position_error(samples, model_acceleration(samples, final_model))
+
+def _screen(
+    workflow: Workflow, pool: list[str], naming: Naming, reference: FloatArray, round_number: int
+) -> list[tuple[Candidate, Trial]]:
+    """Each candidate fitted on top of the round's model and scored on held-out data, best score first."""
+    scored = []
+    for effect_id in pool:
+        # Later rounds keep the named effects at their fitted values while candidates are screened (the
+        # named ones are refitted jointly with the winner at the end).
+        trial = workflow.trial([effect_id], naming.start, fixed=naming.named)
+        candidate = _score(workflow, effect_id, trial, reference, round_number)
+        if not candidate.fitted_any and round_number == 1:
+            naming.not_testable[effect_id] = "; ".join(candidate.not_identifiable.values())
+        scored.append((candidate, trial))
+    scored.sort(key=lambda item: -item[0].score)
+    return scored
+
+
+def _score(
+    workflow: Workflow, effect_id: str, trial: Trial, reference: FloatArray, round_number: int
+) -> Candidate:
+    """The candidate's held-out score, significance, size, and where it explains the error."""
+    samples, valid, folds, settings = workflow.samples, workflow.valid, workflow.folds, workflow.settings
+    before = float(block_sse(reference, valid, folds)[workflow.used_blocks].sum())
+    after = float(block_sse(trial.heldout, valid, folds)[workflow.used_blocks].sum())
+    score = 1.0 - after / before if before > 0 else 0.0
+    z_stat = improvement_z(reference, trial.heldout, valid, folds)
+    peak = peak_window_rms(reference - trial.in_sample, samples, valid, settings.peak_window_s)
+    names = workflow.parameter_names(effect_id)
+    not_identifiable = {name: why for (e, name), why in trial.fit.not_identifiable.items() if e == effect_id}
+    fitted_any = len(not_identifiable) < len(names)
+    significant = bool(
+        fitted_any
+        and z_stat >= settings.z_critical
+        and score > 0
+        and peak >= settings.negligible_acceleration_m_s2
+    )
+    bias_like = False
+    if significant and peak < settings.bias_check_below_m_s2:
+        # A small effect must also explain something an accelerometer bias cannot.
+        reference_unbiased, heldout_unbiased = _without_body_bias(samples, reference, trial.heldout)
+        z_unbiased = improvement_z(reference_unbiased, heldout_unbiased, valid, folds)
+        bias_like = z_unbiased < settings.z_critical
+        significant = not bias_like
+    gain = np.sum(np.nan_to_num(reference) ** 2 - np.nan_to_num(trial.heldout) ** 2, axis=1)
+    where_gain = concentration(np.maximum(gain, 0.0), valid, workflow.variables)
+    candidate = Candidate(
+        effect=effect_id,
+        round=round_number,
+        parameters=trial.parameters(effect_id),
+        std={name: trial.fit.std.get((effect_id, name)) for name in names},
+        mse_after=per_axis(np.mean(trial.heldout[valid] ** 2, axis=0)),
+        score=score,
+        z_statistic=z_stat,
+        peak_contribution_m_s2=peak,
+        significant=significant,
+        regime=f"explains most where {where_gain[0].text}"
+        if where_gain and score > 0
+        else "explains nothing",
+        not_identifiable=not_identifiable,
+    )
+    candidate.verdict = _verdict(candidate, bias_like, settings)
+    return candidate
+
+
+def _verdict(candidate: Candidate, bias_like: bool, settings: DiscrepancySettings) -> str:
+    if not candidate.fitted_any:
+        return "not identifiable on this log"
+    if bias_like:
+        return (
+            f"not significant: small (at most {candidate.peak_contribution_m_s2:.3g} m/s^2) and what it "
+            "explains a constant accelerometer bias explains as well"
+        )
+    if candidate.significant:
+        return "significant"
+    reasons = []
+    if candidate.score <= 0:
+        reasons.append("no held-out improvement")
+    elif candidate.z_statistic < settings.z_critical:
+        reasons.append(
+            f"held-out improvement within noise (z = {candidate.z_statistic:.1f} < {settings.z_critical:g})"
+        )
+    if candidate.peak_contribution_m_s2 < settings.negligible_acceleration_m_s2:
+        reasons.append(
+            f"negligible force (at most {candidate.peak_contribution_m_s2:.3g} m/s^2, below "
+            f"{settings.negligible_acceleration_m_s2})"
+        )
+    return "not significant: " + "; ".join(reasons)
+
+
+def _add_named(workflow: Workflow, naming: Naming, effect_id: str, trial: Trial) -> None:
+    """Name an effect at its fitted values; with earlier ones, refit them all together."""
+    naming.named.append(effect_id)
+    naming.start[effect_id] = trial.parameters(effect_id)
+    if len(naming.named) > 1:
+        # An earlier effect fitted alone absorbed part of the later one.
+        joint = workflow.joint_fit(naming.named, naming.start)
+        naming.start.update(
+            {e: {name: v for (owner, name), v in joint.values.items() if owner == e} for e in naming.named}
+        )
+
+
+def _fit_named(workflow: Workflow, naming: Naming, disagreement: Disagreement) -> FinalFit:
+    """The named effects fitted together on the whole log, with a warning per parameter it cannot tell."""
+    if not naming.named:
+        return FinalFit(workflow.baseline, {}, {}, disagreement.residual, [])
+    trial = workflow.trial(naming.named, naming.start)
+    refs = [(e, name) for e in naming.named for name in workflow.parameter_names(e)]
+    return FinalFit(
+        model=trial.fit.model,
+        parameters={name: float(v) for e in naming.named for name, v in trial.parameters(e).items()},
+        std={name: trial.fit.std.get((e, name)) for e, name in refs},
+        residual=trial.in_sample,
+        warnings=[
+            f"{e}.{name}: {why}" for e, name in refs if (why := trial.fit.not_identifiable.get((e, name)))
+        ],
+    )
+
+
+def _report(
+    workflow: Workflow,
+    disagreement: Disagreement,
+    naming: Naming,
+    final: FinalFit,
+) -> DiscrepancyReport:
+    """The gap before and after, in numbers and words."""
+    samples, valid, named = workflow.samples, workflow.valid, naming.named
+    mse_before = disagreement.mse
+    mse_after = np.mean(final.residual[valid] ** 2, axis=0)
+    position_after, _ = horizon_position_error(samples, model_acceleration(samples, final.model))
+    explanation = list(naming.explanation)
     if named:
         reduction = 1.0 - float(mse_after.sum() / mse_before.sum())
         explanation.append(
@@ -606,115 +791,74 @@ def find_discrepancy(
             f"{mse_before.sum():.4g} to {mse_after.sum():.4g} (m/s^2)^2 summed over the axes "
             f"({100 * reduction:.1f} % less)."
         )
-    if not_testable:
-        explanation.append(
-            "Not testable on this log: " + "; ".join(f"{e} ({why})" for e, why in not_testable.items()) + "."
-        )
+    if naming.not_testable:
+        reasons = "; ".join(f"{e} ({why})" for e, why in naming.not_testable.items())
+        explanation.append(f"Not testable on this log: {reasons}.")
+    rotational = ", ".join(e for e, cls in EFFECTS.items() if cls.rotational)
     explanation.append(
-        "Rotational effects (gyroscopic, cg_offset) are not candidates: the workflow compares translational "
-        "motion."
+        f"Rotational effects ({rotational}) are not candidates: the workflow compares translational motion."
     )
     metric = (
         "mse_before / mse_after: mean square error per world axis of the acceleration [(m/s^2)^2], measured "
-        "minus "
-        "modelled over every usable sample of the log, the model driven by the log's attitude, rotor speeds, "
-        "velocity "
-        f"and height ({samples.chain.describe()}). mse_after: the model with the named effect(s) fitted on "
-        "the whole "
-        "log. candidates[].mse_after and score: held-out values ("
-        + folds.describe()
-        + "); score = share of the "
-        "round's acceleration error removed on held-out data. position_mse_*: mean square position error "
-        "[m^2] over "
-        "1 s horizons re-initialised on the measured position and velocity."
+        "minus modelled over every usable sample of the log, the model driven by the log's attitude, rotor "
+        f"speeds, velocity and height ({samples.chain.describe()}). mse_after: the model with the named "
+        "effect(s) fitted on the whole log. candidates[].mse_after and score: held-out values ("
+        + workflow.folds.describe()
+        + "); score = share of the round's acceleration error removed on held-out data. position_mse_*: mean "
+        "square position error [m^2] over 1 s horizons re-initialised on the measured position and velocity."
     )
-    timings["total"] = time.perf_counter() - clock
+    position_before = disagreement.position_mse
     return DiscrepancyReport(
         log=Path(str(samples.source)).name,
-        airframe=airframe.name,
-        baseline_effects=baseline_ids,
+        airframe=workflow.airframe.name,
+        baseline_effects=workflow.baseline.effect_ids,
         metric=metric,
         mse_before=per_axis(mse_before),
-        where=where,
-        regimes=regimes,
-        candidates=all_candidates,
+        where=disagreement.where,
+        regimes=disagreement.regimes,
+        candidates=naming.candidates,
         missing_effect=named[0] if named else "none",
         missing_effects=named,
-        parameters=parameters,
-        std=std,
+        parameters=final.parameters,
+        std=final.std,
         mse_after=per_axis(mse_after),
         position_mse_before=None if position_before is None else per_axis(position_before),
         position_mse_after=None if position_after is None else per_axis(position_after),
         explanation=explanation,
-        not_testable=not_testable,
-        split=folds.describe(),
-        notes=notes,
-        warnings=warnings,
-        timings_s=timings,
+        not_testable=naming.not_testable,
+        split=workflow.folds.describe(),
+        notes=workflow.notes,
+        warnings=list(samples.warnings) + final.warnings,
+        timings_s={},
         samples=samples,
-        baseline_model=baseline,
-        final_model=final_model,
-        residual_before=residual_before,
-        residual_after=residual_after,
+        baseline_model=workflow.baseline,
+        final_model=final.model,
+        residual_before=disagreement.residual,
+        residual_after=final.residual,
     )
 
 
-def _verdict(candidate: Candidate, fitted_any: bool, bias_like: bool = False) -> str:
-    if not fitted_any:
-        return "not identifiable on this log"
-    if bias_like:
-        return (
-            f"not significant: small (at most {candidate.peak_contribution_m_s2:.3g} m/s^2) and what it "
-            "explains a constant "
-            f"accelerometer bias explains as well"
-        )
-    if candidate.significant:
-        return "significant"
-    reasons = []
-    if candidate.score <= 0:
-        reasons.append("no held-out improvement")
-    elif candidate.z_statistic < Z_CRITICAL:
-        reasons.append(
-            f"held-out improvement within noise (z = {candidate.z_statistic:.1f} < {Z_CRITICAL:g})"
-        )
-    if candidate.peak_contribution_m_s2 < NEGLIGIBLE_ACCELERATION_M_S2:
-        reasons.append(
-            f"negligible force (at most {candidate.peak_contribution_m_s2:.3g} m/s^2, below "
-            f"{NEGLIGIBLE_ACCELERATION_M_S2})"
-        )
-    return "not significant: " + "; ".join(reasons)
+# ----------------------------------------------------------------------------------------------
+# look-alikes
 
 
 def _separate_lookalikes(
-    workflow: Workflow,
-    best: Candidate,
-    best_trial: Trial,
-    significant: list[tuple[Candidate, Trial]],
-    named: list[str],
-    start: dict[str, dict[str, float]],
-    round_residual: FloatArray,
-    variables: list[RegimeVariable],
+    workflow: Workflow, significant: list[tuple[Candidate, Trial]], naming: Naming
 ) -> tuple[Candidate, Trial, list[str]]:
     """Fit the best with each close competitor; keep the one the other does not add to (module docstring)."""
-    samples = workflow.samples
-    valid = samples.valid
-    folds = workflow.folds
+    valid, folds, settings = workflow.valid, workflow.folds, workflow.settings
+    z_critical = settings.z_critical
+    best, best_trial = significant[0]
     words: list[str] = []
-    rivals = [item for item in significant[1:] if item[0].score >= LOOKALIKE_SCORE_RATIO * best.score][
-        :MAX_LOOKALIKES
-    ]
-    for rival, rival_trial in rivals:
+    close = [item for item in significant[1:] if item[0].score >= settings.lookalike_score_ratio * best.score]
+    for rival, rival_trial in close[: settings.max_lookalikes]:
         pair = workflow.trial(
             [best.effect, rival.effect],
-            {
-                **start,
-                best.effect: best.parameters,
-                rival.effect: rival.parameters,
-            },
-            fixed=named,
+            {**naming.start, best.effect: best.parameters, rival.effect: rival.parameters},
+            fixed=naming.named,
         )
-        rival_adds = improvement_z(best_trial.heldout, pair.heldout, valid, folds) >= Z_CRITICAL
-        best_adds = improvement_z(rival_trial.heldout, pair.heldout, valid, folds) >= Z_CRITICAL
+        rival_adds = improvement_z(best_trial.heldout, pair.heldout, valid, folds) >= z_critical
+        best_adds = improvement_z(rival_trial.heldout, pair.heldout, valid, folds) >= z_critical
         if best_adds and rival_adds:
             words.append(
                 f"{best.effect} and {rival.effect} each explain a part the other does not: both seem present "
@@ -723,18 +867,21 @@ def _separate_lookalikes(
             continue
         # The torques are a channel neither fit has seen: when they are conclusive they decide, because a
         # one-sided translational verdict between look-alikes can come from noise in one regressor.
-        rotation = _torque_evidence(samples, folds, best_trial, rival_trial)
+        rotation = _torque_evidence(workflow, best_trial, rival_trial)
         if rotation is not None:
             favoured, z_rot = rotation
             if favoured is rival_trial:
                 best, best_trial, rival, rival_trial = rival, rival_trial, best, best_trial
+            best_signature = (
+                effect_class(best.effect).torque_signature or f"{best.effect} changes the torques"
+            )
+            rival_signature = (
+                effect_class(rival.effect).torque_signature or f"{rival.effect} changes them otherwise"
+            )
             words.append(
                 f"{best.effect} and {rival.effect} explain the same part of the translational error; the "
-                "torque "
-                f"balance (roll and pitch, which neither was fitted to) agrees with {best.effect} "
-                f"(z = {z_rot:.1f}): "
-                f"{_TORQUE_SIGNATURE.get(best.effect, best.effect + ' changes the torques')}; "
-                f"{_TORQUE_SIGNATURE.get(rival.effect, rival.effect + ' changes them otherwise')}."
+                "torque balance (roll and pitch, which neither was fitted to) agrees with "
+                f"{best.effect} (z = {z_rot:.1f}): {best_signature}; {rival_signature}."
             )
             rival.verdict = f"explained away by {best.effect} (torque balance)"
             continue
@@ -744,13 +891,12 @@ def _separate_lookalikes(
             best_adds = True
         if best_adds:
             diff = np.nan_to_num(rival_trial.heldout) ** 2 - np.nan_to_num(best_trial.heldout) ** 2
-            found = concentration(np.maximum(np.sum(diff, axis=1), 0.0), valid, variables)
+            found = concentration(np.maximum(np.sum(diff, axis=1), 0.0), valid, workflow.variables)
             place = found[0].text if found else "no particular regime"
             words.append(
                 f"{best.effect} and {rival.effect} both explain part of the error, but together they do no "
                 f"better than {best.effect} alone on held-out data, while {best.effect} adds to "
-                f"{rival.effect}: "
-                f"{best.effect} is the better explanation; it fits better where {place}."
+                f"{rival.effect}: {best.effect} is the better explanation; it fits better where {place}."
             )
             rival.verdict = f"explained away by {best.effect}"
         else:
@@ -760,58 +906,33 @@ def _separate_lookalikes(
                 f"{best.effect} and {rival.effect} explain the same part of the error and this log cannot "
                 f"separate them (neither adds to the other on held-out data, and the torques do not decide); "
                 f"{best.effect} is named for its higher score ({best.score:.3f} against {rival.score:.3f}). "
-                f"A flight covering more of {_separating_regime(best.effect, rival.effect)} would tell them "
-                "apart."
+                f"A flight covering more of {_regime(best.effect)} and {_regime(rival.effect)} would tell "
+                "them apart."
             )
     return best, best_trial, words
 
 
-def _torque_evidence(samples: FlightSamples, folds: Folds, a: Trial, b: Trial) -> tuple[Trial, float] | None:
-    """Which of two translational fits predicts the roll and pitch torques better, if clearly (|z| >= 3).
+def _regime(effect_id: str) -> str:
+    return effect_class(effect_id).regime or effect_id
+
+
+def _torque_evidence(workflow: Workflow, a: Trial, b: Trial) -> tuple[Trial, float] | None:
+    """Which of two translational fits predicts the roll and pitch torques better, if clearly.
 
     The fits never saw the torques, so this is out-of-sample evidence: a mass offset or a steady force
     leaves the torques as modelled, while a thrust change per rotor (coaxial loss, a speed-dependent
     thrust coefficient, a fault) scales the torques the rotors make.
     """
+    samples, settings = workflow.samples, workflow.settings
     rows = samples.valid & np.all(np.isfinite(samples.w_dot_B), axis=1)
-    if np.count_nonzero(rows) < 100:
+    if np.count_nonzero(rows) < settings.min_torque_samples:
         return None
     r_a = torque_residual(samples, a.fit.model)[:, :2]
     r_b = torque_residual(samples, b.fit.model)[:, :2]
-    z_a = improvement_z(r_b, r_a, rows, folds)
-    if z_a >= Z_CRITICAL:
+    z_a = improvement_z(r_b, r_a, rows, workflow.folds)
+    if z_a >= settings.z_critical:
         return a, z_a
-    z_b = improvement_z(r_a, r_b, rows, folds)
-    if z_b >= Z_CRITICAL:
+    z_b = improvement_z(r_a, r_b, rows, workflow.folds)
+    if z_b >= settings.z_critical:
         return b, z_b
     return None
-
-
-_TORQUE_SIGNATURE = {
-    "mass_offset": "a mass offset leaves the rotors' torques as modelled",
-    "constant_force": "a steady force leaves the rotors' torques as modelled",
-    "coaxial_loss": "a weaker lower rotor in every pair scales the roll and pitch torques by (1 + eta)/2",
-    "thrust_speed_dependence": "a thrust coefficient growing with speed makes fast rotors' torques larger",
-    "inflow_thrust_loss": "inflow changes each rotor's thrust with its speed, and so the torques",
-    "ground_effect": "ground effect scales every rotor's thrust, and so the torques",
-    "actuator_fault": "a weak rotor leaves a torque the others must balance",
-    "motor_lag": "lagging rotors delay the torques too",
-}
-
-
-_REGIME_OF = {
-    "quadratic_drag": "horizontal and vertical speeds (drag quadratic in speed)",
-    "rotor_drag": "horizontal speeds at different rotor speeds (drag linear in speed)",
-    "thrust_speed_dependence": "rotor speeds (thrust growing faster than omega^2)",
-    "mass_offset": "accelerations (a mass scales the whole force need)",
-    "coaxial_loss": "changes of the lower rotors' share of the thrust (on an X8, yaw with diagonal tilt)",
-    "ground_effect": "heights within a few rotor radii of the ground",
-    "inflow_thrust_loss": "climbs and descents",
-    "motor_lag": "fast changes of rotor speed",
-    "constant_force": "headings and attitudes (a steady force does not turn with the vehicle)",
-    "actuator_fault": "flight before and after the fault with manoeuvres",
-}
-
-
-def _separating_regime(a: str, b: str) -> str:
-    return f"{_REGIME_OF.get(a, a)} and {_REGIME_OF.get(b, b)}"

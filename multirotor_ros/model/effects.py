@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 if TYPE_CHECKING:
     from multirotor_ros.model.airframe import Airframe
@@ -575,7 +575,7 @@ class MotorLag(Effect):
 
     def excitation(self, name: str, state: StateBatch, airframe: Airframe) -> tuple[str, FloatArray, str]:
         dt = float(np.median(np.diff(state.t))) if state.size > 1 else math.nan
-        return "the mean rotor speed changes at", np.abs(np.diff(state.omega.mean(axis=1))) / dt, "rad/s^2"
+        return "the rate of change of the mean rotor speed", np.abs(np.diff(state.omega.mean(axis=1))) / dt, "rad/s^2"
 
 
 class MassOffset(Effect):
@@ -864,7 +864,7 @@ class EffectContext:
     w_WB_B: FloatArray  # (B, 3) body rate in FLU [rad/s]
     omega: FloatArray  # (B, N) rotor speeds that make thrust [rad/s]
     rotor_positions_m: FloatArray  # (N, 3) body FLU
-    lower_rotor_mask: FloatArray  # (N,) bool
+    lower_rotor_mask: BoolArray  # (N,)
     spin_signs: FloatArray  # (N,) -1 ccw, +1 cw
     k_f_N_s2: float
     omega_dot: FloatArray | None = None  # (B, N) rotor accelerations [rad/s^2]; None: the rotors hold speed
@@ -921,7 +921,7 @@ def evaluate(effect: Effect, hook: str, ctx: EffectContext, **known: FloatArray)
     formula = getattr(type(effect), hook)
     per_rotor = hook in ROTOR_FORMULAS
     per_rotor_name = effect.PER_ROTOR_PARAMETER.name if effect.PER_ROTOR_PARAMETER is not None else None
-    arguments = {}
+    arguments: dict[str, FloatArray | None] = {}
     for name in formula_arguments(formula):
         if name in effect.parameters:
             value = effect.parameters[name]
