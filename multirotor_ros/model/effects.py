@@ -575,7 +575,11 @@ class MotorLag(Effect):
 
     def excitation(self, name: str, state: StateBatch, airframe: Airframe) -> tuple[str, FloatArray, str]:
         dt = float(np.median(np.diff(state.t))) if state.size > 1 else math.nan
-        return "the rate of change of the mean rotor speed", np.abs(np.diff(state.omega.mean(axis=1))) / dt, "rad/s^2"
+        return (
+            "the rate of change of the mean rotor speed",
+            np.abs(np.diff(state.omega.mean(axis=1))) / dt,
+            "rad/s^2",
+        )
 
 
 class MassOffset(Effect):
