@@ -1,7 +1,8 @@
 # Two commands for people:
 #   make demo   the whole loop (simulator, controller, identifier) flying and diagnosing a fault
-#   make test   the test suite, including the gates: ruff check (test/test_packaging.py) and ruff format
-#               (test/test_formatting.py), the README examples run as tests (test/test_readme_examples.py)
+#   make test   the test suite, including the gates: ruff check (test/test_packaging.py), ruff format
+#               (test/test_formatting.py), mypy (test/test_typing.py, mypy.ini), the README examples run as
+#               tests (test/test_readme_examples.py)
 # Both first run scripts/bootstrap.sh, which builds .venv on first use and again only after
 # setup.py, setup.cfg, package.xml or the bootstrap scripts change.
 # PYTEST_ARGS passes options to pytest, e.g. `make test PYTEST_ARGS='-k packaging'`.

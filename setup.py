@@ -67,7 +67,10 @@ setup(
     install_requires=["numpy", "scipy", "numba", "pyyaml", "matplotlib", "pymavlink", "rosbags", "pyulog"],
     # setuptools: test/test_packaging.py builds the wheel offline, without pip's build isolation
     # (>= 70.1: bdist_wheel built in, even where a system ROS venv sees an older system setuptools).
-    extras_require={"test": ["pytest", "pytest-timeout", "hypothesis", "ruff", "setuptools>=70.1"]},
+    # mypy and the PyYAML stubs: test/test_typing.py type-checks the package.
+    extras_require={
+        "test": ["pytest", "pytest-timeout", "hypothesis", "ruff", "mypy", "types-PyYAML", "setuptools>=70.1"]
+    },
     zip_safe=True,
     maintainer=_manifest.findtext("maintainer"),
     maintainer_email=_manifest.find("maintainer").get("email"),

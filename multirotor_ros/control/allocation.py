@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.rotation import FloatArray
 
 
@@ -57,7 +58,7 @@ class Allocator:
         self._pair_room = self.high / self._collective[None, :] - self.low / self._collective[:, None]
 
     @classmethod
-    def for_airframe(cls, airframe) -> Allocator:  # type: ignore[no-untyped-def]
+    def for_airframe(cls, airframe: Airframe) -> Allocator:
         """The allocator of an Airframe, with its rotor speed range."""
         return cls(airframe.allocation, airframe.rotor_speed_min_rad_s, airframe.rotor_speed_max_rad_s)
 

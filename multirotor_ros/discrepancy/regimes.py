@@ -13,13 +13,14 @@ where one candidate beats a look-alike: the regime in which they differ is the e
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
 from multirotor_ros.ident.metrics import AXES
 from multirotor_ros.ident.samples import FlightSamples
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 N_BINS = 5
 BIN_NAMES = ("lowest fifth", "low", "middle", "high", "highest fifth")
@@ -60,7 +61,7 @@ def regime_variables(samples: FlightSamples, airframe: Airframe) -> list[RegimeV
     return variables
 
 
-def _bins(values: FloatArray, rows: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _bins(values: FloatArray, rows: BoolArray) -> tuple[FloatArray, FloatArray]:
     """Bin index per sample (-1 outside rows) and the N_BINS + 1 quantile edges over rows."""
     edges = np.quantile(values[rows], np.linspace(0, 1, N_BINS + 1))
     index = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, N_BINS - 1)
@@ -85,12 +86,12 @@ class Concentration:
 
 
 def concentration(
-    per_sample: FloatArray, rows: FloatArray, variables: list[RegimeVariable], exclude: tuple[str, ...] = ()
+    per_sample: FloatArray, rows: BoolArray, variables: list[RegimeVariable], exclude: tuple[str, ...] = ()
 ) -> list[Concentration]:
     """For each regime variable, the bin with the highest mean of ``per_sample``; sorted by that ratio."""
     total = float(np.sum(per_sample[rows]))
-    mean = total / max(np.count_nonzero(rows), 1)
-    found = []
+    mean = total / max(int(np.count_nonzero(rows)), 1)
+    found: list[Concentration] = []
     if mean <= 0:
         return found
     for variable in variables:
@@ -172,5 +173,5 @@ def error_windows(
     weight = (
         {axis: float(totals[a] / totals.sum()) for a, axis in enumerate(AXES)} if totals.sum() > 0 else {}
     )
-    entries.sort(key=lambda e: -e["share_of_error"] * weight.get(str(e["axis"]), 0.0))
+    entries.sort(key=lambda e: -cast(float, e["share_of_error"]) * weight.get(str(e["axis"]), 0.0))
     return entries[:limit]

@@ -61,7 +61,7 @@ from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.effects import EFFECTS, TRANSLATIONAL_EFFECTS, Effect, effect_class, make_effect
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 Progress = Callable[[str], None]
 
@@ -203,7 +203,7 @@ class Folds:
     k: int
     block_s: float
 
-    def test_rows(self, fold: int, valid: FloatArray) -> FloatArray:
+    def test_rows(self, fold: int, valid: BoolArray) -> BoolArray:
         """Samples of one fold (usable ones)."""
         return valid & (self.block % self.k == fold)
 
@@ -233,13 +233,13 @@ def make_folds(samples: FlightSamples, settings: DiscrepancySettings) -> Folds:
     return Folds(block, int(block.max()) + 1, settings.folds, block_s)
 
 
-def block_sse(residual: FloatArray, rows: FloatArray, folds: Folds) -> FloatArray:
+def block_sse(residual: FloatArray, rows: BoolArray, folds: Folds) -> FloatArray:
     """(n_blocks,) sum over samples and axes of squared residuals, per block."""
     squared = np.where(rows, np.sum(np.nan_to_num(residual) ** 2, axis=1), 0.0)
     return np.bincount(folds.block, weights=squared, minlength=folds.n_blocks)
 
 
-def improvement_z(before: FloatArray, after: FloatArray, rows: FloatArray, folds: Folds) -> float:
+def improvement_z(before: FloatArray, after: FloatArray, rows: BoolArray, folds: Folds) -> float:
     """How many standard deviations of noise the held-out improvement SSE(before) - SSE(after) stands at.
 
     With e = after (what is left) and c = before - after (what the added effect takes away), the
@@ -279,7 +279,7 @@ def _without_body_bias(
 
 
 def peak_window_rms(
-    contribution: FloatArray, samples: FlightSamples, rows: FloatArray, window_s: float
+    contribution: FloatArray, samples: FlightSamples, rows: BoolArray, window_s: float
 ) -> float:
     """Largest RMS over windows of ``window_s`` of a per-sample vector (T, 3) on ``rows``."""
     index = np.floor((samples.t - samples.t[0]) / window_s).astype(int)

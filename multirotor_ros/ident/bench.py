@@ -302,7 +302,7 @@ def fit_speed_map(
         start, speed_min = float(max(zero_command, previous)), 0.0
     else:
         start = float(u[first])
-        speed_min = float(max(line(start), 0.0))
+        speed_min = max(float(line(start)), 0.0)
         if law == "quadratic":
             speed_min = float(np.sqrt(speed_min))
         if first > 0:

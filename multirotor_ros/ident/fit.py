@@ -44,7 +44,7 @@ from multirotor_ros.ident.samples import FlightSamples, MeasurementChain, descri
 from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.effects import EFFECTS, EffectContext, effect_class, formula_arguments
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.rotors import rotor_signatures
 
 Progress = Callable[[str], None]
@@ -108,12 +108,12 @@ class FitResult:
     std: dict[ParameterRef, float | None]
     not_identifiable: dict[ParameterRef, str]
     residual: FloatArray  # (T, 3) measured - modelled acceleration [m/s^2]; NaN outside the fitted rows
-    rows: FloatArray  # (T,) bool, the samples fitted
+    rows: BoolArray  # (T,) the samples fitted
     weights: FloatArray  # (3,) per-axis weights used
     notes: list[str] = field(default_factory=list)
     fault_candidates: list[tuple[int, float, float]] = field(default_factory=list)  # (motor, onset, score)
 
-    def mse(self, rows: FloatArray | None = None) -> FloatArray:
+    def mse(self, rows: BoolArray | None = None) -> FloatArray:
         """(3,) mean square acceleration error per axis over ``rows`` (default: the fitted ones)."""
         use = self.rows if rows is None else rows
         return np.mean(self.residual[use] ** 2, axis=0)
@@ -159,7 +159,7 @@ def build_design(samples: FlightSamples, model: Model, linear: Sequence[Paramete
         dF = samples.through_chain(dF)
     y, Phi = regressor.assemble(s, F0, dF)
     if samples.nuisance is not None:
-        y, Phi = _without_nuisance(samples, y, Phi)
+        y, Phi = _without_nuisance(samples, samples.nuisance, y, Phi)
     design = Design(y, Phi, regressor, model, ctx)
     if len(cache) >= samples.settings.design_cache_size:
         cache.pop(next(iter(cache)))
@@ -168,7 +168,7 @@ def build_design(samples: FlightSamples, model: Model, linear: Sequence[Paramete
 
 
 def _without_nuisance(
-    samples: FlightSamples, y: FloatArray, Phi: FloatArray
+    samples: FlightSamples, nuisance: FloatArray, y: FloatArray, Phi: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """The y and Phi minus their least-squares projection on the nuisance columns (Frisch-Waugh-Lovell).
 
@@ -178,7 +178,7 @@ def _without_nuisance(
     key = ("nuisance basis",)
     if key not in samples.design_cache:
         # Zero outside the usable rows, so that projecting every row leaves the unusable ones as they are.
-        masked = np.where(samples.valid[:, None, None], samples.nuisance, 0.0)
+        masked = np.where(samples.valid[:, None, None], nuisance, 0.0)
         samples.design_cache[key] = np.linalg.qr(masked.reshape(-1, masked.shape[2]))[0]
     q = samples.design_cache[key]
 
@@ -193,13 +193,15 @@ def _without_nuisance(
 def nuisance_estimate(samples: FlightSamples, residual_before_projection: FloatArray) -> FloatArray:
     """Least-squares nuisance parameters explaining a (force) residual over the usable rows."""
     N = samples.nuisance
+    if N is None:
+        return np.zeros(0)
     rows = samples.valid
     return np.linalg.lstsq(
         N[rows].reshape(-1, N.shape[2]), residual_before_projection[rows].reshape(-1), rcond=None
     )[0]
 
 
-def _weighted_system(design: Design, rows: FloatArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _weighted_system(design: Design, rows: BoolArray, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
     sw = np.sqrt(weights)
     y = design.y[rows] * sw[None, :]
     A = (design.Phi[rows] * sw[None, :, None]).reshape(y.size, design.Phi.shape[2])
@@ -250,7 +252,7 @@ class LinearSolver:
         self.upper = np.array([f.upper for f in fitted])
         self.held = held
 
-    def solve(self, design: Design, rows: FloatArray, weights: FloatArray) -> FloatArray:
+    def solve(self, design: Design, rows: BoolArray, weights: FloatArray) -> FloatArray:
         """Fitted theta for the design's parameter list (held ones fixed)."""
         free = [j for j, r in enumerate(self.refs) if r not in self.held]
         theta = design.regressor.theta0.copy()
@@ -270,7 +272,7 @@ def residual_force(design: Design, theta: FloatArray) -> FloatArray:
     return design.y - design.Phi @ theta
 
 
-def sse(design: Design, theta: FloatArray, rows: FloatArray, weights: FloatArray) -> float:
+def sse(design: Design, theta: FloatArray, rows: BoolArray, weights: FloatArray) -> float:
     """Weighted sum of squared force residuals over ``rows``."""
     r = residual_force(design, theta)[rows]
     return float(np.sum(r * r * weights[None, :]))
@@ -288,14 +290,15 @@ class Fitter:
         samples: FlightSamples,
         model: Model,
         free: Sequence[ParameterRef],
-        rows: FloatArray | None = None,
+        rows: BoolArray | None = None,
         weights: FloatArray | None = None,
         progress: Progress | None = None,
         held: dict[ParameterRef, float] | None = None,
     ):
         self.samples = samples
         self.start_model = model
-        self.free = [tuple(r) for r in free]  # type: ignore[misc]
+        # Lists (from YAML or JSON) become tuples: refs are compared and used as keys.
+        self.free: list[ParameterRef] = [(effect_id, name) for effect_id, name in free]
         for ref in self.free:
             parameter_value(model, ref)  # names the missing effect or parameter
         self.rows = samples.valid.copy() if rows is None else (samples.valid & rows)
@@ -326,7 +329,7 @@ class Fitter:
         self.weights = np.ones(3) if weights is None else np.asarray(weights, dtype=float)
         self._given_weights = weights is not None
         self.fault_candidates: list[tuple[int, float, float]] = []
-        self.fault_profile: tuple[FloatArray, FloatArray] | None = None
+        self.fault_profile: FloatArray | None = None  # (T,) score of each onset on the rotor found
 
     def _say(self, message: str) -> None:
         if self.progress is not None:
@@ -334,7 +337,7 @@ class Fitter:
 
     # -- linear part --------------------------------------------------------------------------
 
-    def solve_linear(self, model: Model, rows: FloatArray | None = None) -> tuple[Design, FloatArray, float]:
+    def solve_linear(self, model: Model, rows: BoolArray | None = None) -> tuple[Design, FloatArray, float]:
         """Design and fitted linear parameters for the non-linear values in ``model``."""
         use = self.rows if rows is None else rows
         design = build_design(self.samples, model, self.linear)
@@ -436,7 +439,6 @@ class Fitter:
         r0 = Y - Phi @ (G_inv @ (A.T @ Y.reshape(-1))) if P else Y
         noise = max(float(np.mean(r0[rows] ** 2)), 1e-300)
         rot = self._torque_residual(healthy, design.ctx)
-        order = np.arange(rows.size)
         eligible = rows.copy()
         after = np.cumsum(rows[::-1])[::-1]
         eligible &= after * samples.dt >= samples.settings.min_fault_duration_s
@@ -471,7 +473,7 @@ class Fitter:
         self.fault_candidates = [
             (int(m) + 1, float(samples.t[best_index[m]]), float(best_score[m])) for m in ranking[:3]
         ]
-        self.fault_profile = (order, profiles[motor])
+        self.fault_profile = profiles[motor]
         self._say(
             f"{search.rotor[0]}: rotor {motor + 1} from t = {samples.t[k]:.2f} s (searched "
             f"{airframe.n_rotors} rotors x {int(np.count_nonzero(eligible))} onsets over {n_rows} samples)"
@@ -586,7 +588,7 @@ def newey_west(
     return bread @ meat @ bread, white, bandwidth
 
 
-def excitation_evidence(ref: ParameterRef, samples: FlightSamples, model: Model, rows: FloatArray) -> str:
+def excitation_evidence(ref: ParameterRef, samples: FlightSamples, model: Model, rows: BoolArray) -> str:
     """What this log shows of the regime that makes ``ref`` visible, in words."""
     effect = model.effect(ref[0])
     if effect is None:
@@ -611,115 +613,179 @@ class Uncertainty:
 
 
 def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
-    """Covariance of the continuous free parameters of a fitted ``model`` and the identifiability verdicts."""
-    samples = fitter.samples
-    rows = fitter.rows
-    design = build_design(samples, model, fitter.linear)
-    theta = np.array([parameter_value(model, r) for r in fitter.linear])
-    residual = residual_force(design, theta)
-    columns = [design.Phi]
-    continuous = list(fitter.linear)
-    probes: dict[ParameterRef, float] = {}
-    settings = samples.settings
-    for ref in fitter.scalar_searches:
-        if ref not in fitter.held:
-            value = parameter_value(model, ref)
-            if value <= 2 * parameter_facts(ref).start:
-                # At "no effect" the force does not change to first order (the ground factor is quadratic in
-                # the radius): whether the log could show the effect is judged at a typical value instead.
-                value = FittedParameter.of(ref, model.airframe).scale
-                probes[ref] = value
-            step = max(1e-4, 1e-3 * value)
-            lo, hi = max(value - step, 1e-6), value + step
-            r_hi = residual_force(build_design(samples, with_values(model, {ref: hi}), fitter.linear), theta)
-            r_lo = residual_force(build_design(samples, with_values(model, {ref: lo}), fitter.linear), theta)
-            # The prediction's derivative is minus the residual's.
-            columns.append(((r_lo - r_hi) / (hi - lo))[:, :, None])
-            continuous.append(ref)
-    X = np.concatenate(columns, axis=2)[rows]
-    free_idx = [j for j, r in enumerate(continuous) if r not in fitter.held]
-    std: dict[ParameterRef, float | None] = {r: None for r in fitter.free}
+    """Covariance of the continuous free parameters of a fitted ``model`` and the identifiability verdicts.
+
+    Also returns the force residual (T, 3) [N] at the fitted values. In stages: the residual at the fit,
+    each continuous parameter's column, the standard deviations of the free ones, the verdicts.
+    """
+    design, theta, residual = _residual_at_fit(fitter, model)
+    sensitivity = _sensitivity(fitter, model, design, theta)
+    std: dict[ParameterRef, float | None] = {ref: None for ref in fitter.free}
     notes: list[str] = []
     not_identifiable: dict[ParameterRef, str] = {}
-    worst: tuple[tuple[int, int, float], ParameterRef] | None = None
-    if free_idx:
-        Xf = X[:, :, free_idx]
-        cov, white, bandwidth = newey_west(Xf, residual[rows], fitter.weights)
-        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        sd_white = np.sqrt(np.maximum(np.diag(white), 0.0))
-        inflation = float(np.median(sd / np.maximum(sd_white, 1e-300)))
-        notes.append(
-            f"standard deviations: Newey-West (bandwidth {bandwidth} samples = {bandwidth * samples.dt:.3g} "
-            "s) for "
-            f"autocorrelated residuals; the white-noise formula gives {inflation:.2g} times smaller values"
+    worst: ParameterRef | None = None
+    free = [j for j, ref in enumerate(sensitivity.refs) if ref not in fitter.held]
+    if free:
+        refs = [sensitivity.refs[j] for j in free]
+        X = sensitivity.columns[fitter.rows][:, :, free]
+        sd, covariance_note = _standard_deviations(
+            X, residual[fitter.rows], fitter.weights, fitter.samples.dt
         )
-        A = (Xf * np.sqrt(fitter.weights)[None, :, None]).reshape(-1, len(free_idx))
-        norms = np.linalg.norm(A, axis=0)
-        norms[norms == 0] = 1.0
-        corr = (A / norms).T @ (A / norms)
-        refs_free = [continuous[j] for j in free_idx]
-        residual_rms = float(np.sqrt(np.mean(np.sum(residual[rows] ** 2, axis=1)))) / float(
-            np.asarray(model.mass_kg)
-        )
-        for ref in probes:
-            notes.append(
-                f"{ref[1]}: the best fit is no {ref[0]}; its std is the resolution the log would give near "
-                f"{probes[ref]:g}"
-            )
-        ratios = []
-        fitted = {ref: FittedParameter.of(ref, model.airframe) for ref in refs_free}
-        for i, ref in enumerate(refs_free):
-            allowed = settings.identifiable_relative_std * max(
-                abs(probes.get(ref, parameter_value(model, ref)) - fitted[ref].neutral), fitted[ref].scale
-            )
-            ratios.append((float(sd[i]) / allowed if allowed > 0 else math.inf, allowed))
-        # Columns this close are one column: the data give only a combination, and noise in the inputs
-        # (errors in variables) makes the std of each meaningless, so the verdict does not wait for the std.
-        collinear: dict[int, tuple[int, float]] = {}
-        for i in range(len(refs_free)):
-            for j in range(i + 1, len(refs_free)):
-                if abs(corr[i, j]) >= settings.exactly_collinear:
-                    k_f_index = next((k for k in (i, j) if refs_free[k] == (AIRFRAME, K_F)), None)
-                    victim = (
-                        k_f_index if k_f_index is not None else (i if ratios[i][0] >= ratios[j][0] else j)
-                    )
-                    collinear[victim] = (j if victim == i else i, abs(float(corr[i, j])))
-        for i, ref in enumerate(refs_free):
-            std[ref] = float(sd[i])
-            value = parameter_value(model, ref)
-            ratio, allowed = ratios[i]
-            if i in collinear or not sd[i] <= allowed or norms[i] == 1.0 and np.allclose(A[:, i], 0):
-                others = [(abs(corr[i, j]), refs_free[j]) for j in range(len(refs_free)) if j != i]
-                partner = max(others, default=(0.0, None))
-                if i in collinear:
-                    partner = (collinear[i][1], refs_free[collinear[i][0]])
-                if partner[1] is not None and partner[0] >= settings.collinear_correlation:
-                    why = (
-                        f"nearly collinear with {partner[1][1]} (correlation {partner[0]:.5f}): this log "
-                        "determines only "
-                        "a combination of the two"
-                    )
-                else:
-                    why = (
-                        "too little excitation for the noise and unexplained error of this log "
-                        f"({residual_rms:.2g} "
-                        f"m/s^2 RMS): it shows in {fitted[ref].facts.excited_by}, and "
-                        f"{excitation_evidence(ref, samples, model, rows)}"
-                    )
-                not_identifiable[ref] = (
-                    f"{ref[1]} is not identifiable ({why})"
-                    if i in collinear
-                    else f"{ref[1]} = {value:.4g} +/- {sd[i]:.2g} is not identifiable ({why}); "
-                    f"the std must stay below {allowed:.2g} to tell a relevant value from none"
-                )
-                # Exact collinearity first, and k_f (the airframe's own, known value) before an effect's
-                # parameter.
-                key = (2 if i in collinear else 1, 1 if ref == (AIRFRAME, K_F) else 0, ratio)
-                if worst is None or key > worst[0]:
-                    worst = (key, ref)
+        std.update(zip(refs, sd.tolist(), strict=True))
+        notes.append(covariance_note)
+        notes += [
+            f"{ref[1]}: the best fit is no {ref[0]}; its std is the resolution the log would give near "
+            f"{value:g}"
+            for ref, value in sensitivity.probes.items()
+        ]
+        not_identifiable, worst = _identifiability(fitter, model, refs, X, sd, sensitivity.probes, residual)
     for ref in fitter.held:
         std[ref] = None
-    return Uncertainty(std, not_identifiable, None if worst is None else worst[1], notes), residual
+    return Uncertainty(std, not_identifiable, worst, notes), residual
+
+
+def _residual_at_fit(fitter: Fitter, model: Model) -> tuple[Design, FloatArray, FloatArray]:
+    """The design of the fitted ``model``, the values of its linear parameters and the force residual [N]."""
+    design = build_design(fitter.samples, model, fitter.linear)
+    theta = np.array([parameter_value(model, ref) for ref in fitter.linear])
+    return design, theta, residual_force(design, theta)
+
+
+@dataclass
+class _Sensitivity:
+    """How the modelled force moves with each continuous parameter at a fit: one column per parameter."""
+
+    columns: FloatArray  # (T, 3, P) d(force)/d(parameter) [N per unit of the parameter]
+    refs: list[ParameterRef]  # the P parameters: the linear ones, then the searched continuous ones
+    # Searched parameters fitted at "no effect": their columns are taken at this typical value instead.
+    probes: dict[ParameterRef, float]
+
+
+def _sensitivity(fitter: Fitter, model: Model, design: Design, theta: FloatArray) -> _Sensitivity:
+    """The design's columns and, by central differences, those of the searched continuous parameters."""
+    samples = fitter.samples
+    columns = [design.Phi]
+    refs = list(fitter.linear)
+    probes: dict[ParameterRef, float] = {}
+    for ref in fitter.scalar_searches:
+        if ref in fitter.held:
+            continue
+        value = parameter_value(model, ref)
+        if value <= 2 * parameter_facts(ref).start:
+            # At "no effect" the force does not change to first order (the ground factor is quadratic in
+            # the radius): whether the log could show the effect is judged at a typical value instead.
+            value = FittedParameter.of(ref, model.airframe).scale
+            probes[ref] = value
+        step = max(1e-4, 1e-3 * value)
+        lo, hi = max(value - step, 1e-6), value + step
+        r_hi = residual_force(build_design(samples, with_values(model, {ref: hi}), fitter.linear), theta)
+        r_lo = residual_force(build_design(samples, with_values(model, {ref: lo}), fitter.linear), theta)
+        # The prediction's derivative is minus the residual's.
+        columns.append(((r_lo - r_hi) / (hi - lo))[:, :, None])
+        refs.append(ref)
+    return _Sensitivity(np.concatenate(columns, axis=2), refs, probes)
+
+
+def _standard_deviations(
+    X: FloatArray, residual: FloatArray, weights: FloatArray, dt: float
+) -> tuple[FloatArray, str]:
+    """Newey-West standard deviations of the parameters of the columns X (n, 3, P), and a note on them."""
+    covariance, white, bandwidth = newey_west(X, residual, weights)
+    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    sd_white = np.sqrt(np.maximum(np.diag(white), 0.0))
+    inflation = float(np.median(sd / np.maximum(sd_white, 1e-300)))
+    note = (
+        f"standard deviations: Newey-West (bandwidth {bandwidth} samples = {bandwidth * dt:.3g} s) for "
+        f"autocorrelated residuals; the white-noise formula gives {inflation:.2g} times smaller values"
+    )
+    return sd, note
+
+
+def _identifiability(
+    fitter: Fitter,
+    model: Model,
+    refs: list[ParameterRef],
+    X: FloatArray,
+    sd: FloatArray,
+    probes: dict[ParameterRef, float],
+    residual: FloatArray,
+) -> tuple[dict[ParameterRef, str], ParameterRef | None]:
+    """The free parameters ``refs`` this log cannot identify, why, and the one to hold first (or None).
+
+    A parameter is not identifiable when its column is one with another's, when its std exceeds
+    ``identifiable_relative_std`` of max(|value - neutral|, scale) (at the probe value, if probed), or
+    when the log does not move it at all.
+    """
+    samples = fitter.samples
+    settings = samples.settings
+    A = (X * np.sqrt(fitter.weights)[None, :, None]).reshape(-1, len(refs))
+    norms = np.linalg.norm(A, axis=0)
+    norms[norms == 0] = 1.0
+    corr = (A / norms).T @ (A / norms)
+    fitted = [FittedParameter.of(ref, model.airframe) for ref in refs]
+    allowed = [
+        settings.identifiable_relative_std
+        * max(abs(probes.get(ref, parameter_value(model, ref)) - facts.neutral), facts.scale)
+        for ref, facts in zip(refs, fitted, strict=True)
+    ]
+    ratios = [float(s) / a if a > 0 else math.inf for s, a in zip(sd, allowed, strict=True)]
+    collinear = _exactly_collinear(refs, corr, ratios, settings.exactly_collinear)
+    residual_rms = float(np.sqrt(np.mean(np.sum(residual[fitter.rows] ** 2, axis=1)))) / float(
+        np.asarray(model.mass_kg)
+    )
+    not_identifiable: dict[ParameterRef, str] = {}
+    worst: tuple[tuple[int, int, float], ParameterRef] | None = None
+    for i, ref in enumerate(refs):
+        unmoved = norms[i] == 1.0 and np.allclose(A[:, i], 0)
+        if i not in collinear and sd[i] <= allowed[i] and not unmoved:
+            continue
+        partner: ParameterRef | None
+        if i in collinear:
+            correlation, partner = collinear[i][1], refs[collinear[i][0]]
+        else:
+            others = [(abs(corr[i, j]), refs[j]) for j in range(len(refs)) if j != i]
+            correlation, partner = max(others, default=(0.0, None))
+        if partner is not None and correlation >= settings.collinear_correlation:
+            why = (
+                f"nearly collinear with {partner[1]} (correlation {correlation:.5f}): this log determines "
+                "only a combination of the two"
+            )
+        else:
+            why = (
+                "too little excitation for the noise and unexplained error of this log "
+                f"({residual_rms:.2g} m/s^2 RMS): it shows in {fitted[i].facts.excited_by}, and "
+                f"{excitation_evidence(ref, samples, model, fitter.rows)}"
+            )
+        not_identifiable[ref] = (
+            f"{ref[1]} is not identifiable ({why})"
+            if i in collinear
+            else f"{ref[1]} = {parameter_value(model, ref):.4g} +/- {sd[i]:.2g} is not identifiable ({why}); "
+            f"the std must stay below {allowed[i]:.2g} to tell a relevant value from none"
+        )
+        # Exact collinearity first, and k_f (the airframe's own, known value) before an effect's parameter.
+        key = (2 if i in collinear else 1, 1 if ref == (AIRFRAME, K_F) else 0, ratios[i])
+        if worst is None or key > worst[0]:
+            worst = (key, ref)
+    return not_identifiable, None if worst is None else worst[1]
+
+
+def _exactly_collinear(
+    refs: list[ParameterRef], corr: FloatArray, ratios: list[float], threshold: float
+) -> dict[int, tuple[int, float]]:
+    """The parameters whose column is one with another's: index -> (the other's index, |correlation|).
+
+    Columns this close are one column: the data give only a combination, and noise in the inputs (errors
+    in variables) makes the std of each meaningless, so the verdict does not wait for the std. Of a pair,
+    k_f is the one named (the airframe's own, known value), otherwise the one with the larger std ratio.
+    """
+    collinear: dict[int, tuple[int, float]] = {}
+    for i in range(len(refs)):
+        for j in range(i + 1, len(refs)):
+            if abs(corr[i, j]) >= threshold:
+                k_f_index = next((k for k in (i, j) if refs[k] == (AIRFRAME, K_F)), None)
+                victim = k_f_index if k_f_index is not None else (i if ratios[i] >= ratios[j] else j)
+                collinear[victim] = (j if victim == i else i, abs(float(corr[i, j])))
+    return collinear
 
 
 def torque_residual(samples: FlightSamples, model: Model) -> FloatArray:
@@ -782,7 +848,7 @@ def fit_parameters(
     samples: FlightSamples,
     model: Model,
     free: Sequence[ParameterRef],
-    rows: FloatArray | None = None,
+    rows: BoolArray | None = None,
     progress: Progress | None = None,
     hold_unidentifiable: bool = True,
     held: dict[ParameterRef, float] | None = None,
@@ -820,9 +886,9 @@ def fit_parameters(
         break
     std = dict(uncertainty.std)
     for search in fitter.rotor_onset_searches:
-        if search.onset in held or fitter.fault_profile is None:
+        profile = fitter.fault_profile
+        if search.onset in held or profile is None:
             continue
-        order, profile = fitter.fault_profile
         finite = np.isfinite(profile)
         near = finite & (profile >= np.max(profile[finite]) - 1.0)
         spread = samples.t[near]

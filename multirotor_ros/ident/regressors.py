@@ -133,17 +133,17 @@ class ForceRegressor:
     """
 
     def __init__(self, model: Model, refs: Sequence[ParameterRef]):
-        refs = [tuple(r) for r in refs]  # type: ignore[misc]
-        duplicated = sorted({r for r in refs if refs.count(r) > 1})
+        # Lists (from YAML or JSON) become tuples: refs are compared and used as keys.
+        self.refs: list[ParameterRef] = [(effect_id, name) for effect_id, name in refs]
+        duplicated = sorted({r for r in self.refs if self.refs.count(r) > 1})
         if duplicated:
             raise ValueError(f"parameter(s) listed twice: {duplicated}")
-        for effect_id, name in refs:
+        for effect_id, name in self.refs:
             if not is_regressed((effect_id, name)):
                 raise ValueError(
                     f"{effect_id}.{name} enters the force non-linearly: it is searched, not regressed "
                     f"(see multirotor_ros.ident.fit)"
                 )
-        self.refs: list[ParameterRef] = list(refs)  # type: ignore[arg-type]
         self.names = [name for _, name in self.refs]
         self.bilinear = is_bilinear(self.refs)
         self.model = model

@@ -38,7 +38,7 @@ from multirotor_ros.io.flight_log import FlightLog, FlightLogError, read_flight_
 from multirotor_ros.model.airframe import GRAVITY_M_S2, Airframe
 from multirotor_ros.model.effects import EffectContext, hover_speed_estimate
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix
+from multirotor_ros.model.rotation import BoolArray, FloatArray, euler_rates_matrix, euler_to_matrix
 from multirotor_ros.model.state import StateBatch
 
 
@@ -120,7 +120,7 @@ class FlightSamples:
     w_WB_B: FloatArray  # (T, 3) [rad/s]
     w_dot_B: FloatArray  # (T, 3) [rad/s^2] (differentiated; NaN where unknown)
     omega: FloatArray  # (T, N) logged rotor speeds [rad/s]
-    valid: FloatArray  # (T,) bool: usable for fitting
+    valid: BoolArray  # (T,) usable for fitting
     segments: list[tuple[int, int]]  # [start, stop) index ranges without gaps or unusable inputs
     chain: MeasurementChain
     rate_chain: MeasurementChain  # how w_dot_B was obtained (from body rates or Euler angles)
@@ -152,7 +152,7 @@ class FlightSamples:
         """Time covered by usable samples [s] (their count times the median interval)."""
         return float(np.count_nonzero(self.valid) * self.dt)
 
-    def states(self, rows: FloatArray | slice | None = None) -> StateBatch:
+    def states(self, rows: BoolArray | slice | None = None) -> StateBatch:
         """The samples (all, or ``rows``) as states with their logged rotor speeds and accelerations."""
         index = slice(None) if rows is None else rows
         return StateBatch(
@@ -232,7 +232,7 @@ def lag_filter(
     return out
 
 
-def _segments(mask: FloatArray, t: FloatArray, dt: float, gap_factor: float) -> list[tuple[int, int]]:
+def _segments(mask: BoolArray, t: FloatArray, dt: float, gap_factor: float) -> list[tuple[int, int]]:
     """Maximal runs of True in ``mask`` without a time gap (a step above ``gap_factor`` dt) inside."""
     breaks = np.zeros(mask.size, dtype=bool)
     breaks[1:] = np.diff(t) > gap_factor * dt
@@ -265,7 +265,7 @@ def _smooth_derivative(
     return out
 
 
-def _describe_rows(t: FloatArray, rows: FloatArray, limit: int = 3) -> str:
+def _describe_rows(t: FloatArray, rows: BoolArray, limit: int = 3) -> str:
     """'t = 1.2-3.4 s, 5.0-5.1 s, ...' for a boolean row mask."""
     idx = np.flatnonzero(rows)
     if idx.size == 0:
@@ -374,7 +374,7 @@ class _Motion:
     w_WB_B: FloatArray  # 0 where unknown
     w_dot_B: FloatArray
     omega: FloatArray
-    inputs_known: FloatArray  # (T,) bool: attitude, rotor speeds, position and velocity all finite
+    inputs_known: BoolArray  # (T,) attitude, rotor speeds, position and velocity all finite
     chain: MeasurementChain
     rate_chain: MeasurementChain
     height_known: bool
@@ -451,7 +451,7 @@ def _derive_motion(
 class _Usable:
     """The samples that may be fitted, the gap-free segments they form, and what was left out and why."""
 
-    valid: FloatArray  # (T,) bool
+    valid: BoolArray  # (T,)
     segments: list[tuple[int, int]]
     notes: list[str]
     warnings: list[str]
@@ -499,7 +499,7 @@ def _mark_usable(flight: FlightLog, airframe: Airframe, motion: _Motion, setting
 
 def _ground_contact(
     flight: FlightLog, airframe: Airframe, motion: _Motion, settings: FitSettings
-) -> tuple[FloatArray, list[str]]:
+) -> tuple[BoolArray, list[str]]:
     """(T,) bool: samples where the vehicle may touch the ground, and a note on how that was decided."""
     p = motion.p_WB_W
     acceleration = motion.a_W
@@ -531,7 +531,7 @@ def _ground_contact(
 
 
 def _check_thrust(
-    airframe: Airframe, motion: _Motion, valid: FloatArray, source: str, settings: FitSettings
+    airframe: Airframe, motion: _Motion, valid: BoolArray, source: str, settings: FitSettings
 ) -> tuple[list[str], list[str]]:
     """(notes, warnings) of the thrust check; LogMismatch when the log cannot be of this airframe."""
     needed_specific_force = motion.a_W.copy()
@@ -570,7 +570,7 @@ def _check_thrust(
     return notes, warnings
 
 
-def _thrust_ratio(airframe: Airframe, omega: FloatArray, s_needed: FloatArray, valid: FloatArray) -> float:
+def _thrust_ratio(airframe: Airframe, omega: FloatArray, s_needed: FloatArray, valid: BoolArray) -> float:
     needed = airframe.mass_kg * np.linalg.norm(s_needed[valid], axis=1)
     thrust = airframe.k_f_N_s2 * np.sum(omega[valid] ** 2, axis=1)
     flying = needed > 0.3 * airframe.mass_kg * GRAVITY_M_S2

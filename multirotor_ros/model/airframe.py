@@ -17,11 +17,13 @@ from typing import Any, Literal
 import numpy as np
 import yaml
 
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.rotors import rotor_signatures
 from multirotor_ros.resources import config_directory
 
 GRAVITY_M_S2 = 9.81
+# A rotor farther from the centre is a typo or a unit error (mm for m), and its torques overflow later.
+LARGEST_ROTOR_DISTANCE_M = 100.0
 Spin = Literal["ccw", "cw"]
 
 
@@ -121,7 +123,7 @@ class Airframe:
         return np.array([r.spin_sign for r in self.rotors])
 
     @property
-    def lower_rotor_mask(self) -> FloatArray:
+    def lower_rotor_mask(self) -> BoolArray:
         """(N,) booleans: the lower rotor of a coaxial pair."""
         return np.array([r.level == "lower" for r in self.rotors])
 
@@ -262,13 +264,21 @@ class _Reader:
                 raw = entry["position_m"]
                 if not isinstance(raw, list) or len(raw) != 3:
                     raise self.fail(f"{where}.position_m", "expected [x, y, z] in body FLU [m]")
-                position = tuple(self.number(f"{where}.position_m[{i}]", v) for i, v in enumerate(raw))
+                x, y, z = (self.number(f"{where}.position_m[{i}]", v) for i, v in enumerate(raw))
+                position = (x, y, z)
             else:
                 if arm_length_m is None:
                     raise self.fail(f"{where}.angle_deg", "needs arm_length_m at the top level")
                 # angle_deg runs from the nose (+x) towards the left (+y): counter-clockwise from above.
                 angle = math.radians(self.number(f"{where}.angle_deg", entry["angle_deg"]))
                 position = (arm_length_m * math.cos(angle), arm_length_m * math.sin(angle), 0.0)
+            largest = max(abs(c) for c in position)
+            if largest > LARGEST_ROTOR_DISTANCE_M:
+                key = f"{where}.position_m" if "position_m" in entry else "arm_length_m"
+                limit = LARGEST_ROTOR_DISTANCE_M
+                raise self.fail(
+                    key, f"{largest:g} m from the centre: no multirotor is larger than {limit:g} m"
+                )
             spin = entry["spin"]
             if spin not in ("ccw", "cw"):
                 raise self.fail(f"{where}.spin", f"expected 'ccw' or 'cw', got {spin!r}")
@@ -362,13 +372,34 @@ def airframe_from_dict(
         description=str(document.get("description", "")),
         source_path=source_path,
     )
-    singular = np.linalg.svd(airframe.allocation / np.abs(airframe.allocation).max(axis=1, keepdims=True))[1]
+    _check_allocation(airframe.allocation, reader)
+    return airframe
+
+
+_ALLOCATION_ROWS = ("thrust", "roll torque (tau_x)", "pitch torque (tau_y)", "yaw torque (tau_z)")
+
+
+def _check_allocation(allocation: FloatArray, reader: _Reader) -> None:
+    """Refuse a rotor layout that cannot produce every thrust/torque direction, saying which it lacks."""
+    if not np.all(np.isfinite(allocation)):
+        raise reader.fail(
+            "rotors", "positions and coefficients give a non-finite allocation matrix (too large)"
+        )
+    # Rows in different units (N, N m): scale each to 1 before asking for the rank.
+    row_scale = np.abs(allocation).max(axis=1)
+    missing = [name for name, scale in zip(_ALLOCATION_ROWS, row_scale, strict=True) if scale == 0.0]
+    if missing:
+        raise reader.fail(
+            "rotors",
+            f"no rotor produces any {' or '.join(missing)}: the rotors sit on one line through the centre "
+            "(all at the same angle_deg?) and cannot produce every thrust/torque direction",
+        )
+    singular = np.linalg.svd(allocation / row_scale[:, np.newaxis], compute_uv=False)
     if singular.min() < 1e-9:
         raise reader.fail(
             "rotors",
             "the allocation matrix has rank < 4: this layout cannot produce every thrust/torque direction",
         )
-    return airframe
 
 
 def resolve_airframe_path(name_or_path: str | Path) -> Path:

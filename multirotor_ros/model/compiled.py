@@ -216,7 +216,7 @@ class ParameterLayout:
         """(batch, P) parameter rows of ``model``; per-vehicle parameters broadcast over the batch."""
         n = model.n_rotors
         rows = np.zeros((batch, self.size(n)))
-        base = {
+        base: dict[str, FloatArray | float] = {
             "mass_kg": model.mass_kg,
             "gravity_m_s2": model.gravity_m_s2,
             "k_f": model.airframe.k_f_N_s2,

@@ -19,6 +19,7 @@ rotor speeds (12:12+N) [rad/s].
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from multirotor_ros.model import state as S
 from multirotor_ros.model.model import Model
@@ -55,7 +56,7 @@ class HamiltonianModel:
         """As the wrapped model's (motor_lag)."""
         return self.model.rotor_time_constant_s
 
-    def check_command(self, u: FloatArray, batch: int) -> FloatArray:
+    def check_command(self, u: ArrayLike, batch: int) -> FloatArray:
         """As :meth:`Model.check_command`."""
         return self.model.check_command(u, batch)
 
@@ -94,7 +95,10 @@ class HamiltonianModel:
         model = self.model
         v_W, eta_dot, w_B, W = self.velocities(X)
         omega = X[:, ROTORS_START:] if model.rotor_time_constant_s is not None else u
-        ctx = model.context(StateBatch(t, X[:, 0:3], v_W, euler_to_matrix(X[:, 3:6]), w_B, omega))
+        states = StateBatch(
+            np.asarray(t, dtype=float), X[:, 0:3], v_W, euler_to_matrix(X[:, 3:6]), w_B, omega
+        )
+        ctx = model.context(states)
         F_W, tau_B, _ = model.wrench(ctx)
         # -dH/deta_k = (1/2) eta_dot^T dJ/deta_k eta_dot = (dW/deta_k eta_dot) . (I w_B).
         angular_momentum_B = w_B @ model.inertia_kg_m2.T

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]  # masks: which rows, rotors or samples
 
 
 def quat_to_matrix(q_WB: ArrayLike) -> FloatArray:
