@@ -255,7 +255,12 @@ def test_with_a_key_only_signed_commands_move_the_setpoint(signed_setup):
         intruder.close()
     station.collect(0.4)
     assert [s.p_W_m.tolist() for s in setpoints] == [[2.0, 1.0, 3.0]]
-    assert bridge.refusals.counts == {"unsigned command": 1, "bad signature": 2}
+    # The unsigned intruder's HEARTBEAT passes the signing policy but makes no peer of it.
+    assert bridge.refusals.counts == {
+        "unsigned command": 1,
+        "bad signature": 2,
+        "ground station not admitted": 1,
+    }
 
 
 def test_link_without_a_state_yet_reads_setpoints_against_home():

@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from multirotor_ros.mavlink.messages import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
     MAV_RESULT_UNSUPPORTED,
+    REQUEST_RATE_BOUNDS_HZ,
     MessageSchedule,
     heading_cdeg,
     time_usec,
+    wire_value,
 )
 
 GPS = 113
+HEARTBEAT = 0
 
 
 def due_times(
@@ -39,17 +44,54 @@ def test_after_a_gap_the_schedule_restarts_from_now_instead_of_bursting():
 
 def test_set_message_interval_answers():
     schedule = MessageSchedule({GPS: 10.0}, {GPS: (5.0, 10.0)})
-    assert schedule.request(GPS, 200_000) == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 5.0
-    assert schedule.request(GPS, 50_000) == MAV_RESULT_DENIED  # 20 Hz: outside what is allowed
-    assert schedule.request(GPS, -1) == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 0.0
+    assert schedule.request(GPS, 200_000).result == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 5.0
+    assert schedule.request(GPS, 50_000).result == MAV_RESULT_DENIED  # 20 Hz: outside what is allowed
+    assert schedule.request(GPS, -1).result == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 0.0
     assert not schedule.due(GPS, 100.0)  # stopped
-    assert schedule.request(GPS, 0) == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 10.0  # default
-    assert schedule.request(30, 10_000) == MAV_RESULT_UNSUPPORTED
-    assert schedule.request(float("nan"), 10_000) == MAV_RESULT_DENIED
-    assert schedule.request(GPS + 0.5, 10_000) == MAV_RESULT_DENIED
-    assert schedule.request(GPS, float("inf")) == MAV_RESULT_DENIED
+    assert schedule.request(GPS, 0).result == MAV_RESULT_ACCEPTED and schedule.rate_hz(GPS) == 10.0  # default
+    assert schedule.request(30, 10_000).result == MAV_RESULT_UNSUPPORTED
+    assert schedule.request(float("nan"), 10_000).result == MAV_RESULT_DENIED
+    assert schedule.request(GPS + 0.5, 10_000).result == MAV_RESULT_DENIED
+    assert schedule.request(GPS, float("inf")).result == MAV_RESULT_DENIED
+
+
+@pytest.mark.parametrize("interval_us", [1, 19_999, 20_000_001, 1e300, -2, float("nan"), float("-inf")])
+def test_requested_rates_outside_the_bounds_are_denied_and_say_which_parameter(interval_us):
+    # HEARTBEAT at 1 us went out 3,187 times a second before: at most 50 Hz, at least every 20 s.
+    schedule = MessageSchedule({HEARTBEAT: 1.0})
+    answer = schedule.request(HEARTBEAT, interval_us)
+    assert answer.result == MAV_RESULT_DENIED and answer.refused_param == 2
+    assert "50 Hz" in answer.detail and schedule.rate_hz(HEARTBEAT) == 1.0
+
+
+def test_requested_rates_within_the_bounds_are_taken():
+    low_hz, high_hz = REQUEST_RATE_BOUNDS_HZ
+    schedule = MessageSchedule({HEARTBEAT: 1.0})
+    assert schedule.request(HEARTBEAT, 1e6 / high_hz).result == MAV_RESULT_ACCEPTED
+    assert schedule.rate_hz(HEARTBEAT) == pytest.approx(high_hz)
+    assert schedule.request(HEARTBEAT, 1e6 / low_hz).result == MAV_RESULT_ACCEPTED
+    assert schedule.rate_hz(HEARTBEAT) == pytest.approx(low_hz)
 
 
 def test_wire_units():
     assert heading_cdeg(-math.pi / 2) == 27000 and heading_cdeg(2 * math.pi) == 0
     assert time_usec(0.0) == 1 and time_usec(1.25) == 1_250_000
+    assert heading_cdeg(math.nan) == 65535 and time_usec(math.inf) == 2**64 - 1  # unknown; the largest
+
+
+@pytest.mark.parametrize(
+    ("value", "wire_type", "expected"),
+    [
+        (1e308, "int16_t", 32767),
+        (-1e308, "int32_t", -(2**31)),
+        (math.nan, "int32_t", 0),
+        (math.inf, "uint16_t", 65535),
+        (-5, "uint8_t", 0),
+        (2.6, "int16_t", 3),
+        (1e39, "float", 3.4028234663852886e38),
+        (-math.inf, "float", -3.4028234663852886e38),
+        (1e308, "double", 1e308),
+    ],
+)
+def test_wire_value_fits_every_field_type(value, wire_type, expected):
+    assert wire_value(value, wire_type) == expected

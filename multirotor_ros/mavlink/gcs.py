@@ -1,8 +1,7 @@
 """The ground-station link: telemetry out over UDP, position setpoints in.
 
-Out (to ``host:port``, 127.0.0.1:14550 by default, and to every address a ground station has sent
-from in the last 10 s), on the wall clock, as system ``system_id`` / component 1 (an autopilot, so
-that ground stations show it as a vehicle):
+Out (to the ground stations, see "Peers" below), on the wall clock, as system ``system_id`` /
+component 1 (an autopilot, so that ground stations show it as a vehicle):
 
 | message | rate | content |
 |---|---|---|
@@ -14,7 +13,10 @@ that ground stations show it as a vehicle):
 | ACTUATOR_OUTPUT_STATUS | 10 Hz | rotor speeds [rad/s], one per rotor, ``active`` bit per rotor |
 | ESC_TELEMETRY_1_TO_4 (5_TO_8, ...) | 10 Hz | rotor speeds [rpm], what ground stations display |
 
-``time_boot_ms`` is the simulated time. SET_MESSAGE_INTERVAL changes any of these rates. With PX4 or
+``time_boot_ms`` is the simulated time. SET_MESSAGE_INTERVAL changes any of these rates within
+0.05..50 Hz (interval 20,000..20,000,000 us; -1 stops a message, 0 restores its default); a request
+outside is answered DENIED with ``result_param2 = 2`` and counted (:class:`.messages.MessageSchedule`).
+Every value is fitted to its field's range before packing (:func:`.messages.fit_to_wire`). With PX4 or
 ArduPilot SITL also reporting to the same ground station, give the bridge another ``system_id`` (the
 flight stack's is 1 too), or the ground station mixes the two vehicles up.
 
@@ -27,7 +29,21 @@ ignore the position (velocity or acceleration only) or use another frame are ref
 behind ``setpoint`` flies to positions. An ignored yaw keeps the current heading.
 
 Signing: with a key, outgoing packets are signed and incoming ones go through
-:class:`~multirotor_ros.mavlink.signing.SigningPolicy`; refused ones never reach the handlers.
+:class:`~multirotor_ros.mavlink.signing.SigningPolicy`; refused ones never reach the handlers. Commands
+that change rates (COMMAND_LONG) are commands like setpoints: unsigned ones are refused with a key.
+
+Peers: telemetry and replies go only to known ground stations, so that a spoofed source address cannot
+turn the link into an amplifier aimed at somebody else:
+
+- the configured address ``host:port`` always (the operator chose it);
+- besides it, at most ``max_peers`` (3) other addresses, each learnt from a datagram carrying a message
+  that passed the signing policy and, with a key, was signed with it (an unsigned HEARTBEAT, which the
+  policy lets through, does not make a peer). A peer is forgotten 10 s after its last such message.
+
+A datagram from any other address is refused as a whole ("ground station not admitted", counted):
+its commands are not handled and nothing is sent back. Without a key anybody can become a peer, so the
+bound is what limits the traffic one spoofer can direct: at most ``max_peers`` destinations besides
+the configured one, at the configured rates. With a key only holders of the key become peers.
 """
 
 from __future__ import annotations
@@ -42,17 +58,16 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from multirotor_ros.frames import ned_to_enu, yaw_ned_to_enu
 from multirotor_ros.mavlink.messages import (
-    MAV_CMD_SET_MESSAGE_INTERVAL,
-    MAV_RESULT_UNSUPPORTED,
     MessageSchedule,
     NedView,
+    answer_command,
     as_float_list,
     heading_cdeg,
     ned_view,
     time_usec,
 )
 from multirotor_ros.mavlink.sensors import SensorModel
-from multirotor_ros.mavlink.signing import SigningPolicy
+from multirotor_ros.mavlink.signing import SigningPolicy, is_signed
 from multirotor_ros.mavlink.vehicle import VehicleState
 from multirotor_ros.mavlink.wire import MavlinkCodec, Message, UdpEndpoint
 from multirotor_ros.model.rotation import FloatArray
@@ -60,6 +75,7 @@ from multirotor_ros.refusals import RefusalCounter
 
 DEFAULT_PORT = 14550
 GCS_PEER_MEMORY_S = 10.0
+MAX_PEERS_LIMIT = 16
 SETPOINT_RANGE_M = 10000.0  # [m] from home: anything farther is a mistake, not a destination
 RAD_S_TO_RPM = 60.0 / (2.0 * math.pi)
 
@@ -106,8 +122,11 @@ class GroundStationConfig:
     bind_port: int = 0  # 0 = any free port; ground stations answer to where packets come from
     system_id: int = 1
     telemetry_rate_hz: float = 50.0  # [Hz] ATTITUDE and LOCAL_POSITION_NED
+    max_peers: int = 3  # ground stations learnt from their messages, besides host:port
 
     def __post_init__(self) -> None:
+        if not 0 <= self.max_peers <= MAX_PEERS_LIMIT:
+            raise ValueError(f"max_peers {self.max_peers} outside 0..{MAX_PEERS_LIMIT}")
         if not 0.0 < self.telemetry_rate_hz <= 500.0:
             raise ValueError(f"ground-station telemetry rate {self.telemetry_rate_hz} Hz outside (0, 500] Hz")
         if not 1 <= self.system_id <= 255:
@@ -153,11 +172,7 @@ class GroundStationLink:
                 MSG_GLOBAL_POSITION_INT: 10.0,
                 MSG_ACTUATOR_OUTPUT_STATUS: 10.0,
                 MSG_ESC_TELEMETRY: 10.0,
-            },
-            {
-                message: (0.05, 500.0)
-                for message in (MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, MSG_GLOBAL_POSITION_INT)
-            },
+            }
         )
         self._peers: dict[tuple[str, int], float] = {}
         self.setpoints = 0
@@ -176,9 +191,17 @@ class GroundStationLink:
 
     # ------------------------------------------------------------------ outgoing
 
+    @property
+    def configured_address(self) -> tuple[str, int]:
+        """The ground station's configured address (always a destination)."""
+        return (self.config.host, self.config.port)
+
     def _destinations(self, now_s: float) -> list[tuple[str, int]]:
+        self._forget_silent_peers(now_s)
+        return list({self.configured_address, *self._peers})
+
+    def _forget_silent_peers(self, now_s: float) -> None:
         self._peers = {a: t for a, t in self._peers.items() if now_s - t < GCS_PEER_MEMORY_S}
-        return list({(self.config.host, self.config.port), *self._peers})
 
     def _send(self, message: Message, now_s: float) -> None:
         data = self.codec.encode(message)
@@ -233,7 +256,7 @@ class GroundStationLink:
             return [mav.local_position_ned_encode(t_ms, p[0], p[1], p[2], v[0], v[1], v[2])]
         if message_id == MSG_GLOBAL_POSITION_INT:
             fix = self.sensors.gps(state.p_WB_W, state.v_WB_W)
-            relative_mm = round(float(state.p_WB_W[2]) * 1000.0)
+            relative_mm = float(state.p_WB_W[2]) * 1000.0  # the codec fits it to int32
             hdg = heading_cdeg(float(view.euler_NED_rad[2]))
             return [
                 mav.global_position_int_encode(
@@ -251,14 +274,14 @@ class GroundStationLink:
             return [
                 mav.actuator_output_status_encode(time_usec(state.t_s), active, as_float_list(speeds, 32))
             ]
-        # ESC telemetry, four rotors per message.
-        rpm = np.clip(np.round(speeds * RAD_S_TO_RPM), 0, 65535).astype(int)
+        # ESC telemetry, four rotors per message; the codec rounds the rpm into its uint16 field.
+        rpm = (speeds * RAD_S_TO_RPM).tolist()
         messages = []
         for group, encoder in enumerate(ESC_TELEMETRY_ENCODERS):
             chunk = rpm[4 * group : 4 * group + 4]
-            if chunk.size == 0:
+            if not chunk:
                 break
-            padded = [*chunk.tolist(), *[0] * (4 - chunk.size)]
+            padded = [*chunk, *[0] * (4 - len(chunk))]
             messages.append(getattr(mav, encoder)([0] * 4, [0] * 4, [0] * 4, [0] * 4, padded, [0] * 4))
         return messages
 
@@ -266,8 +289,8 @@ class GroundStationLink:
 
     def _on_datagram(self, data: bytes, address: tuple[str, int]) -> None:
         messages = self.codec.decode(data, whole_datagram=True)
-        if messages:
-            self._peers[address] = self.clock()
+        if not messages or not self._admitted(address, messages):
+            return
         for message in messages:
             kind = message.get_type()
             if kind == "TIMESYNC":
@@ -276,6 +299,29 @@ class GroundStationLink:
                 self._on_position_target(message)
             elif kind == "COMMAND_LONG":
                 self._on_command_long(message, address)
+
+    def _admitted(self, address: tuple[str, int], messages: list[Message]) -> bool:
+        """Whether this datagram's sender is a peer (becoming one if it may); see "Peers" above."""
+        if address == self.configured_address:
+            return True
+        now_s = self.clock()
+        vouched = not self.codec.signing.enabled or any(is_signed(m.get_msgbuf()) for m in messages)
+        self._forget_silent_peers(now_s)
+        known = address in self._peers
+        if not known and not vouched:
+            self.refusals.refuse(
+                "ground station not admitted", f"{address[0]}:{address[1]} sent nothing signed with the key"
+            )
+            return False
+        if not known and len(self._peers) >= self.config.max_peers:
+            self.refusals.refuse(
+                "ground station not admitted",
+                f"{address[0]}:{address[1]}: already {len(self._peers)} ground stations (max_peers)",
+            )
+            return False
+        if vouched:
+            self._peers[address] = now_s
+        return True
 
     def _for_us(self, target_system: int) -> bool:
         return target_system in (0, self.config.system_id)
@@ -291,16 +337,7 @@ class GroundStationLink:
     def _on_command_long(self, message: Message, address: tuple[str, int]) -> None:
         if not self._for_us(message.target_system):
             return
-        if message.command == MAV_CMD_SET_MESSAGE_INTERVAL:
-            result = self.schedule.request(message.param1, message.param2)
-        else:
-            result = MAV_RESULT_UNSUPPORTED
-        ack = self.codec.mav.command_ack_encode(
-            message.command,
-            result,
-            target_system=message.get_srcSystem(),
-            target_component=message.get_srcComponent(),
-        )
+        ack = answer_command(self.codec.mav, message, self.schedule, self.refusals.refuse)
         self.endpoint.send(self.codec.encode(ack), address)
 
     def _on_position_target(self, message: Message) -> None:

@@ -37,18 +37,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from multirotor_ros.mavlink.actuators import RotorChannels
 from multirotor_ros.mavlink.messages import (
-    MAV_CMD_SET_MESSAGE_INTERVAL,
-    MAV_RESULT_UNSUPPORTED,
     MessageSchedule,
     NedView,
+    answer_command,
     ned_view,
     time_usec,
 )
-from multirotor_ros.mavlink.sensors import GpsFix, SensorModel
+from multirotor_ros.mavlink.sensors import STANDARD_GRAVITY_M_S2, GpsFix, SensorModel
 from multirotor_ros.mavlink.vehicle import Simulation, VehicleState
 from multirotor_ros.mavlink.wire import MavlinkCodec, Message, SocketCallbacks, TcpServerEndpoint
 from multirotor_ros.refusals import RefusalCounter
@@ -184,18 +184,7 @@ class Px4Session:
                 self._next_free_step_s = self.clock()
 
     def _on_command_long(self, message: Message) -> None:
-        if message.command == MAV_CMD_SET_MESSAGE_INTERVAL:
-            result = self.schedule.request(message.param1, message.param2)
-        else:
-            result = MAV_RESULT_UNSUPPORTED
-        self._send(
-            self.codec.mav.command_ack_encode(
-                message.command,
-                result,
-                target_system=message.get_srcSystem(),
-                target_component=message.get_srcComponent(),
-            )
-        )
+        self._send(answer_command(self.codec.mav, message, self.schedule, self.refusals.refuse))
 
     # ------------------------------------------------------------------ outgoing
 
@@ -308,8 +297,9 @@ class Px4Session:
     def _hil_state_quaternion(self, fix: GpsFix, view: NedView, stamp: int) -> Message:
         vn, ve, vd = fix.v_ned_cm_s
         w = view.w_FRD_rad_s
-        speed_cm_s = min(65535, round(float(math.sqrt(float((view.v_NED_m_s**2).sum()))) * 100.0))
-        accel_mg = [max(-32768, min(32767, round(a / 9.80665 * 1000.0))) for a in view.imu_accel_FRD_m_s2]
+        # Floats in integer fields: the codec rounds them and clamps them to their ranges.
+        speed_cm_s = float(np.linalg.norm(view.v_NED_m_s / 1e3)) * 1e5  # scaled: 1e308 m/s must not overflow
+        accel_mg = (view.imu_accel_FRD_m_s2 / STANDARD_GRAVITY_M_S2 * 1000.0).tolist()
         return self.codec.mav.hil_state_quaternion_encode(
             stamp,
             view.q_NED_FRD.tolist(),

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from multirotor_ros.frames import enu_to_ned, flu_to_frd, ned_to_enu
+from multirotor_ros.mavlink.messages import heading_cdeg, wire_value
 from multirotor_ros.model.rotation import FloatArray
 
 # ISA sea-level reference and troposphere lapse rate (ISO 2533).
@@ -33,6 +34,7 @@ ISA_LAPSE_RATE_K_M = 0.0065  # [K/m]
 ISA_GAS_CONSTANT_J_KG_K = 287.05287  # [J/(kg K)] dry air
 STANDARD_GRAVITY_M_S2 = 9.80665  # [m/s^2]
 ISA_TROPOPAUSE_M = 11000.0  # [m] the model is only valid below
+ISA_LOWEST_M = -2000.0  # [m] below any place on land (Dead Sea shore: -430 m)
 _ISA_EXPONENT = STANDARD_GRAVITY_M_S2 / (ISA_GAS_CONSTANT_J_KG_K * ISA_LAPSE_RATE_K_M)  # ~5.2559
 
 # WGS-84 ellipsoid.
@@ -212,7 +214,8 @@ class SensorModel:
 
     def barometer(self, p_WB_W: ArrayLike) -> Barometer:
         """Static pressure, pressure altitude and air temperature at an ENU position."""
-        altitude = min(self.altitude_m(p_WB_W), ISA_TROPOPAUSE_M)
+        # Within the model's range: 1e63 m below the sea would overflow the power law.
+        altitude = max(min(self.altitude_m(p_WB_W), ISA_TROPOPAUSE_M), ISA_LOWEST_M)
         # Scalar math (the ISA functions above, for one altitude): this runs at every physics step.
         temperature_k = ISA_TEMPERATURE_K - ISA_LAPSE_RATE_K_M * altitude
         pressure = ISA_PRESSURE_PA * (temperature_k / ISA_TEMPERATURE_K) ** _ISA_EXPONENT
@@ -239,16 +242,14 @@ class SensorModel:
         ground_speed = float(math.hypot(v_ned[0], v_ned[1]))
         course = 65535
         if ground_speed > 0.05:
-            course = round(math.degrees(math.atan2(v_ned[1], v_ned[0])) % 360.0 * 100.0) % 36000
+            course = heading_cdeg(math.atan2(v_ned[1], v_ned[0]))
+        # Integers fitted to their fields: a position or speed no GPS reports must not raise here.
+        north_cm_s, east_cm_s, down_cm_s = (wire_value(v * 100.0, "int16_t") for v in v_ned)
         return GpsFix(
-            latitude_e7=round(latitude * 1e7),
-            longitude_e7=round(longitude * 1e7),
-            altitude_mm=round(altitude * 1000.0),
-            v_ned_cm_s=tuple(_clamp_int16(round(v * 100.0)) for v in v_ned),  # type: ignore[arg-type]
-            ground_speed_cm_s=min(round(ground_speed * 100.0), 65534),
+            latitude_e7=wire_value(latitude * 1e7, "int32_t"),
+            longitude_e7=wire_value(longitude * 1e7, "int32_t"),
+            altitude_mm=wire_value(altitude * 1000.0, "int32_t"),
+            v_ned_cm_s=(north_cm_s, east_cm_s, down_cm_s),
+            ground_speed_cm_s=min(wire_value(ground_speed * 100.0, "uint16_t"), 65534),
             course_cdeg=course,
         )
-
-
-def _clamp_int16(value: int) -> int:
-    return max(-32768, min(32767, value))

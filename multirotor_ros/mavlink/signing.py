@@ -61,6 +61,11 @@ def signing_timestamp_now(wall_time_s: float | None = None) -> int:
     return max(0, int((now - SIGNING_EPOCH_UNIX_S) * SIGNING_TICKS_PER_S))
 
 
+def is_signed(packet: bytes | bytearray) -> bool:
+    """Whether a MAVLink packet carries a signature block (not whether the signature is good)."""
+    return len(packet) > 2 and packet[0] == MAVLINK2_MARKER and bool(packet[2] & INCOMPAT_FLAG_SIGNED)
+
+
 @dataclass(frozen=True)
 class Verdict:
     """What the policy decided about one packet: accepted, or refused with a counting reason."""
@@ -98,8 +103,7 @@ class SigningPolicy:
         """Accept or refuse one complete MAVLink packet (CRC already checked) of type ``message_id``."""
         if self.key is None:
             return ACCEPTED
-        signed = len(packet) > 2 and packet[0] == MAVLINK2_MARKER and packet[2] & INCOMPAT_FLAG_SIGNED
-        if not signed:
+        if not is_signed(packet):
             if message_id in UNSIGNED_ALLOWED:
                 return ACCEPTED
             return Verdict(False, "unsigned command", f"message id {message_id} arrived without a signature")

@@ -21,6 +21,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from multirotor_ros.mavlink.messages import fit_to_wire
 from multirotor_ros.mavlink.signing import SigningPolicy
 from multirotor_ros.refusals import RefusalCounter
 
@@ -67,6 +68,7 @@ class MavlinkCodec:
             self._packer.signing.link_id = link_id
         self.messages_in = 0
         self.messages_out = 0
+        self.values_clamped = 0
 
     @property
     def mav(self) -> mavlink2.MAVLink:
@@ -74,7 +76,14 @@ class MavlinkCodec:
         return self._packer
 
     def encode(self, message: Message) -> bytes:
-        """The wire bytes of one message (signed when a key is set)."""
+        """The wire bytes of one message (signed when a key is set), every field fitted to its range."""
+        clamped = fit_to_wire(message)
+        if clamped and not self.values_clamped:
+            _LOGGER.warning(
+                "%s: a value outside its MAVLink field's range was clamped (further ones are only counted)",
+                message.get_type(),
+            )
+        self.values_clamped += clamped
         if self.signing.enabled:
             self._packer.signing.timestamp = max(
                 self._packer.signing.timestamp, self.signing.outgoing_timestamp()

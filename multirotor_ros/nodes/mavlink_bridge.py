@@ -14,7 +14,11 @@ parameters. Which side owns the physics, and why, is described in :mod:`multirot
 
 Always: ``motor_speed_cmd`` (flight-stack actuator outputs through the motor map) and ``setpoint``
 (SET_POSITION_TARGET_LOCAL_NED from the ground station, world ENU). Refused input, on any link or
-topic, is counted per reason and logged once per reason, then in throttled summaries.
+topic, is counted per reason and logged once per reason, then in throttled summaries. The forwarded
+topics are checked before use: finite and physically plausible
+(:class:`~multirotor_ros.plausibility.StateLimits`), and ``odom`` and ``imu`` stamped no later than this
+node's clock allows and not before the newest accepted stamp (:class:`~multirotor_ros.plausibility.StampGate`:
+a far-future stamp must not become the flight stack's time).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from multirotor_ros.mavlink.bridge import (
     BridgeThread,
     MavlinkBridge,
 )
-from multirotor_ros.mavlink.gcs import GroundStationConfig, Setpoint
+from multirotor_ros.mavlink.gcs import MAX_PEERS_LIMIT, GroundStationConfig, Setpoint
 from multirotor_ros.mavlink.physics import SimulatorPhysics
 from multirotor_ros.mavlink.px4 import DEFAULT_PORT as PX4_PORT
 from multirotor_ros.mavlink.px4 import Px4Config
@@ -63,6 +67,7 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.plausibility import StampGate, StateLimits
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
@@ -166,6 +171,15 @@ PARAMETERS = (
         "Hz",
         1.0,
         500.0,
+        read_only=True,
+    ),
+    NodeParameter(
+        "gcs_max_peers",
+        3,
+        "ground stations learnt from their (signed, with a key) messages besides gcs_address:gcs_port",
+        "",
+        0,
+        MAX_PEERS_LIMIT,
         read_only=True,
     ),
     NodeParameter("system_id", 1, "MAVLink system id of the vehicle", "", 1, 255, read_only=True),
@@ -307,6 +321,9 @@ class MavlinkBridgeNode(Node):
         else:
             self._odom: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
             self._speeds: FloatArray = np.zeros(self.airframe.n_rotors)
+            self._limits = StateLimits()
+            self._odom_stamps = StampGate()
+            self._imu_stamps = StampGate()
             self.create_subscription(Odometry, "odom", self._on_odom, qos_profile_sensor_data)
             self.create_subscription(Imu, "imu", self._on_imu, qos_profile_sensor_data)
             self.create_subscription(
@@ -330,6 +347,7 @@ class MavlinkBridgeNode(Node):
                 bind_port=p["gcs_bind_port"],
                 system_id=p["system_id"],
                 telemetry_rate_hz=p["gcs_telemetry_rate_hz"],
+                max_peers=p["gcs_max_peers"],
             )
             if p["gcs_enabled"]
             else None,
@@ -397,10 +415,25 @@ class MavlinkBridgeNode(Node):
 
     # ------------------------------------------------------------------ ROS -> bridge (external physics)
 
+    def _refused(self, refusal: Refusal | None, topic: str) -> bool:
+        if refusal is None:
+            return False
+        self.topic_refusals.refuse(refusal.reason, f"{topic}: {refusal.detail}")
+        return True
+
+    def _stamp_refused(self, gate: StampGate, stamp: Any, topic: str) -> bool:
+        now_ns = self.get_clock().now().nanoseconds
+        return self._refused(gate.check(stamp_to_ns(stamp), now_ns, topic), topic)
+
     def _on_odom(self, message: Odometry) -> None:
         result = state_from_odometry(message)
         if isinstance(result, Refusal):
-            self.topic_refusals.refuse(result.reason, f"odom: {result.detail}")
+            self._refused(result, "odom")
+            return
+        p, v, _, w = result
+        if self._refused(self._limits.check(p_WB_W=p, v_WB_W=v, w_WB_B=w, what="odom"), "odom"):
+            return
+        if self._stamp_refused(self._odom_stamps, message.header.stamp, "odom"):
             return
         self._odom = result
 
@@ -408,18 +441,22 @@ class MavlinkBridgeNode(Node):
         limit_rad_s = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, limit_rad_s)
         if isinstance(result, Refusal):
-            self.topic_refusals.refuse(result.reason, f"motor_speeds: {result.detail}")
+            self._refused(result, "motor_speeds")
             return
         self._speeds = result.speeds_rad_s
 
     def _on_imu(self, message: Imu) -> None:
         imu = imu_from_message(message)
         if isinstance(imu, Refusal):
-            self.topic_refusals.refuse(imu.reason, f"imu: {imu.detail}")
+            self._refused(imu, "imu")
+            return
+        w_imu_B, f_imu_B = imu
+        if self._refused(self._limits.check(w_WB_B=w_imu_B, a_WB_W=f_imu_B, what="imu"), "imu"):
             return
         if self._odom is None:
             return  # nothing to send before the first odometry: position and attitude are unknown
-        w_imu_B, f_imu_B = imu
+        if self._stamp_refused(self._imu_stamps, message.header.stamp, "imu"):
+            return
         p, v, q, w_true = self._odom
         t_s = stamp_to_ns(message.header.stamp) * 1e-9
         self.bridge.update_external_state(VehicleState(t_s, p, v, q, w_true, self._speeds, f_imu_B, w_imu_B))
