@@ -47,6 +47,13 @@ ROTOR_PREFIXES = ("omega", "u", "omega_cmd")
 ROTOR_GROUPS = {"rotor_speeds": "omega", "actuators": "u"}
 Group = Literal["position", "velocity", "acceleration", "rotor_speeds", "actuators"]
 ACTUATOR_UNITS = ("pwm_us", "normalized")
+OTHER_SPEC_COLUMNS = ("p", "q", "r", "range")
+# Beyond these magnitudes a cell of a spec column is a broken log, not a measurement: 1e6 is 1000 km,
+# 1000 km/s or 10^6 rad/s, and no PWM or normalised command comes near it. Bounding the cells keeps every
+# square and product the tools form far from overflow (1e300 would reach the fit as inf). t is time since
+# the log's start, but a log may keep a clock counted from an epoch.
+LARGEST_MEASUREMENT = 1e6
+LARGEST_TIME_S = 1e10
 
 _ROTOR_COLUMN = re.compile(r"(omega_cmd|omega|u)_([1-9][0-9]*)")
 _ROTOR_LOOKALIKE = re.compile(r"(omega_cmd|omega|u)_[0-9]+")
@@ -198,7 +205,8 @@ class FlightLog:
 class MotorMapLike(Protocol):
     """What the flight log needs of ``multirotor_ros.model.airframe.MotorMap``."""
 
-    input_unit: str
+    @property
+    def input_unit(self) -> str: ...
 
     def speed_from_command(self, command: FloatArray) -> FloatArray: ...
 
@@ -299,6 +307,17 @@ def _check_values(
         raise fail(
             "infinite value (a number too large for float64, or inf): not a measurement", row, names[col]
         )
+    limits = np.array([_largest_magnitude(name) for name in names])
+    with np.errstate(invalid="ignore"):
+        too_large = np.argwhere(np.abs(values) > limits)
+    if too_large.size:
+        row, col = (int(v) for v in too_large[0])
+        raise fail(
+            f"{values[row, col]:.6g} is not a measurement: no {names[col]} in a flight log exceeds "
+            f"{limits[col]:g} in magnitude",
+            row,
+            names[col],
+        )
     t = values[:, names.index("t")]
     missing_t = np.flatnonzero(np.isnan(t))
     if missing_t.size:
@@ -308,7 +327,7 @@ def _check_values(
     if bad.size:
         row = int(bad[0]) + 1
         kind = "duplicated time stamp" if dt[bad[0]] == 0 else "time stamp out of order"
-        raise fail(f"{kind}: t = {t[row]!r} after t = {t[row - 1]!r}; t must strictly increase", row, "t")
+        raise fail(f"{kind}: t = {t[row]:.9g} after t = {t[row - 1]:.9g}; t must strictly increase", row, "t")
     column_index = {name: i for i, name in enumerate(names)}
 
     def measured_rows(columns: Iterable[str]) -> bool:
@@ -330,6 +349,16 @@ def _check_values(
         problem = _metadata_problem(key, value)
         if problem:
             raise FlightLogError(problem, path, None, None)
+
+
+def _largest_magnitude(name: str) -> float:
+    """Bound on |cell| of a column of the spec (extra columns are not bounded)."""
+    if name == "t":
+        return LARGEST_TIME_S
+    spec_columns = (*REQUIRED_COLUMNS, *(c for g in MOTION_GROUPS.values() for c in g), *OTHER_SPEC_COLUMNS)
+    if name in spec_columns or _ROTOR_COLUMN.fullmatch(name):
+        return LARGEST_MEASUREMENT
+    return math.inf
 
 
 def _metadata_problem(key: str, value: str) -> str | None:
