@@ -31,7 +31,7 @@ class StateLimits:
     speed_m_s: float = 100.0  # racing quadrotors reach about 50 m/s
     body_rate_rad_s: float = 35.0  # 2000 deg/s, the full scale of MEMS gyros in flight controllers
     acceleration_m_s2: float = 160.0  # 16 g, the full scale of flight-controller accelerometers
-    quaternion_norm_tolerance: float = 0.01  # a unit quaternion sent as floats is within 1 % of norm 1
+    quaternion_norm_tolerance: float = 1e-3  # float32 rounding leaves a unit quaternion within 1e-6 of 1
 
     def check(
         self,

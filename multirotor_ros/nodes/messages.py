@@ -42,11 +42,9 @@ from sensor_msgs.msg import Imu, JointState
 from multirotor_ros.frames import ros_quat_to_wxyz, wxyz_to_ros_quat
 from multirotor_ros.model import state as S
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler, quat_to_matrix
+from multirotor_ros.plausibility import StateLimits, format_vector
 from multirotor_ros.refusals import Refusal
 from multirotor_ros.simulation.sensors import ImuReading, SensorConfig
-
-# A quaternion read from a message is a rotation if its norm is this close to 1.
-QUATERNION_NORM_TOLERANCE = 1e-3
 
 # ------------------------------------------------------------------------------------------------
 # Rotor speeds as JointState
@@ -87,7 +85,7 @@ def rotor_speeds_from_joint_state(message: Any, n_rotors: int, limit_rad_s: floa
     bad = ~np.isfinite(speeds)
     if bad.any():
         k = int(np.argmax(bad))
-        return Refusal("non-finite speed", f"rotor_{k + 1} = {speeds[k]}")
+        return Refusal("non-finite speed", f"rotor_{k + 1} = {float(speeds[k])}")
     if np.any(speeds < 0):
         k = int(np.argmax(speeds < 0))
         return Refusal("negative speed", f"rotor_{k + 1} = {speeds[k]:g} rad/s")
@@ -149,8 +147,10 @@ def _vector(values: ArrayLike) -> Vector3:
 
 
 def _unit_quaternion(q_WB: FloatArray, what: str) -> FloatArray | Refusal:
-    norm = float(np.linalg.norm(q_WB))
-    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+    # The largest component first: the norm of 1e308-sized components overflows.
+    largest = float(np.max(np.abs(q_WB)))
+    norm = largest if largest > 2.0 else float(np.linalg.norm(q_WB))
+    if abs(norm - 1.0) > StateLimits().quaternion_norm_tolerance:
         return Refusal("invalid orientation", f"{what} quaternion norm {norm:.6g}, expected 1")
     return q_WB / norm
 
@@ -207,7 +207,11 @@ def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArra
     v_B = vector_from_msg(message.twist.twist.linear)
     w_B = vector_from_msg(message.twist.twist.angular)
     if not all(np.all(np.isfinite(a)) for a in (p, q, v_B, w_B)):
-        return Refusal("non-finite odometry", f"position {p}, orientation {q}, twist {v_B} {w_B}")
+        return Refusal(
+            "non-finite odometry",
+            f"position {format_vector(p)}, orientation {format_vector(q)}, "
+            f"twist {format_vector(v_B)} {format_vector(w_B)}",
+        )
     q_unit = _unit_quaternion(q, "odometry")
     if isinstance(q_unit, Refusal):
         return q_unit
@@ -229,7 +233,7 @@ def pose_from_message(message: Any) -> tuple[FloatArray, FloatArray] | Refusal:
     p = vector_from_msg(message.pose.position)
     q = quaternion_from_msg(message.pose.orientation)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        return Refusal("non-finite pose", f"position {p}, orientation {q}")
+        return Refusal("non-finite pose", f"position {format_vector(p)}, orientation {format_vector(q)}")
     q_unit = _unit_quaternion(q, "pose")
     if isinstance(q_unit, Refusal):
         return q_unit
@@ -244,7 +248,7 @@ def setpoint_from_pose(message: Any) -> tuple[FloatArray, float] | Refusal:
     p = vector_from_msg(message.pose.position)
     q = quaternion_from_msg(message.pose.orientation)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        return Refusal("non-finite setpoint", f"position {p}, orientation {q}")
+        return Refusal("non-finite setpoint", f"position {format_vector(p)}, orientation {format_vector(q)}")
     if not np.any(q):
         return p, 0.0
     q_unit = _unit_quaternion(q, "setpoint")
@@ -306,5 +310,5 @@ def imu_from_message(message: Any) -> tuple[FloatArray, FloatArray] | Refusal:
     w_B = vector_from_msg(message.angular_velocity)
     f_B = vector_from_msg(message.linear_acceleration)
     if not (np.all(np.isfinite(w_B)) and np.all(np.isfinite(f_B))):
-        return Refusal("non-finite imu", f"rates {w_B}, specific force {f_B}")
+        return Refusal("non-finite imu", f"rates {format_vector(w_B)}, specific force {format_vector(f_B)}")
     return w_B, f_B
