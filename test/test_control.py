@@ -25,6 +25,7 @@ from multirotor_ros.control.gains import (
 from multirotor_ros.control.law import SaturationController, saturate, wrap_angle
 from multirotor_ros.model.airframe import GRAVITY_M_S2, AirframeError, airframe_from_dict, load_airframe
 from multirotor_ros.model.rotation import euler_to_quat
+from multirotor_ros.plausibility import StateLimits
 from multirotor_ros.resources import available_airframes
 from multirotor_ros.simulation.flight import simulate_flight
 
@@ -96,6 +97,67 @@ def test_errors_are_taken_in_the_heading_frame(x8) -> None:
 def test_velocity_terms_damp_the_motion(x8) -> None:
     # Moving east at the target: decelerate, i.e. pitch negative as for a position east of the target.
     assert _torque(x8, (0.0, 0.0, 1.0), velocity=(1.0, 0.0, 0.0))[1] < 0
+
+
+# ------------------------------------------------------------------ extreme but plausible input
+
+LIMITS = StateLimits()
+
+
+def _bounded_vectors(limit: float) -> st.SearchStrategy[np.ndarray]:
+    """Vectors of norm up to ``limit`` (less a rounding error), the limit itself and zero included."""
+    largest = limit * (1.0 - 1e-9)
+    direction = st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3).filter(
+        lambda v: np.linalg.norm(v) > 1e-3
+    )
+    size = st.one_of(st.just(largest), st.just(0.0), st.floats(0.0, largest))
+    return st.builds(lambda d, s: np.array(d) / np.linalg.norm(d) * s, direction, size)
+
+
+# Any attitude, and pitch at and near +-90 deg, where the Euler rates divide by cos(pitch).
+_attitudes = st.one_of(
+    st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4)
+    .filter(lambda q: np.linalg.norm(q) > 1e-3)
+    .map(lambda q: np.array(q) / np.linalg.norm(q)),
+    st.builds(
+        lambda pitch, yaw: euler_to_quat([0.0, pitch, yaw]),
+        st.sampled_from([math.pi / 2, -math.pi / 2, math.pi / 2 - 1e-9, 1.5]),
+        st.floats(-math.pi, math.pi),
+    ),
+)
+_plausible_states = st.tuples(
+    st.floats(0.0, 1.0),  # time since the previous update [s]
+    _bounded_vectors(LIMITS.position_m),
+    _bounded_vectors(LIMITS.speed_m_s),
+    _attitudes,
+    _bounded_vectors(LIMITS.body_rate_rad_s),
+    _bounded_vectors(LIMITS.position_m),  # setpoint
+    st.floats(-math.pi, math.pi),
+)
+
+
+@pytest.mark.parametrize("name", AIRFRAMES)
+@settings(max_examples=80, deadline=None)
+@given(states=st.lists(_plausible_states, min_size=1, max_size=6))
+def test_plausible_extremes_give_finite_speeds_in_range(name: str, states: list) -> None:
+    # Whatever the nodes accept (StateLimits: 10 km, 100 m/s, 35 rad/s, any unit quaternion), the law
+    # answers with finite speeds in the rotor range, and is fit for the next update: nothing poisons it.
+    airframe = load_airframe(name)
+    law = SaturationController(airframe, airframe_gains(airframe))
+    t = 0.0
+    for dt, p, v, q, w, p_desired, yaw_desired in states:
+        t += dt
+        assert LIMITS.check(p_WB_W=p, v_WB_W=v, w_WB_B=w) is None
+        output = law.update(t, p, v, q, w, p_desired, yaw_desired)
+        omega = output.omega_cmd_rad_s
+        assert np.all(np.isfinite(omega)) and np.isfinite(output.thrust_N)
+        assert np.all(np.isfinite(output.torque_B))
+        assert np.all(omega >= airframe.rotor_speed_min_rad_s - 1e-9)
+        assert np.all(omega <= airframe.rotor_speed_max_rad_s + 1e-9)
+    hover = law.update(
+        t + 0.004, (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, (0.0, 0.0, 1.0), 0.0
+    )
+    assert np.all(np.isfinite(hover.omega_cmd_rad_s))
 
 
 # ------------------------------------------------------------------ allocation

@@ -12,10 +12,34 @@ the vehicle holds the pose of the first odometry it received. With no odometry f
 the node stops sending commands (warning logged once) and the simulator's watchdog stops the rotors.
 Gains: parameters under the paper's names, defaults from the airframe YAML's ``controller`` section,
 settable at run time (validated; the integrals are rescaled so the output does not jump).
+
+Hostile input (issue 11): nothing refused reaches the law, so its integrals never see it. Every refusal
+is counted per reason, logged once per reason, then summarised (refusals.py).
+
+- odom: finite, a unit quaternion, position, velocity and body rate within ``StateLimits``; a position
+  no farther from the last accepted one than the speed limit allows in the time (on this node's clock)
+  since that one arrived: time between arrivals, not between stamps, which the sender chooses. The
+  allowance grows with time. Its frame ids must be those of the last accepted one. After
+  ``odom_timeout_s`` without accepted odometry neither is compared any more: a real jump or change of
+  frame (a re-localised or restarted estimator) is accepted, and so is the valid odometry that follows a
+  plausible but false first one. The stamp goes through a
+  ``StampGate`` against this node's clock (simulated or wall time): a stamp more than 0.5 s ahead is
+  refused alone and never kept, so the next valid odometry is accepted. A zero stamp is refused as
+  unstamped once this node's clock reads more than that tolerance; before (simulated time just
+  started) it is a real stamp: the simulator's first odometry is stamped 0.
+- setpoint: finite, a unit (or all-zero) quaternion, a position within ``StateLimits.position_m`` (the
+  MAVLink path's 10 km); the frame, if given, that of the odometry. A refused setpoint leaves the
+  previous one in force. Setpoints are commands, taken when they arrive: their stamp is not used.
+- own output: a rotor speed that is not finite or negative is never published. The node publishes
+  nothing that period (the simulator holds the last command; if it happens again and again its watchdog
+  stops the rotors, which is right for a controller that cannot compute) and resets the law, whose
+  integrals could hold the bad value. Re-sending the last good command instead would stamp an old
+  command as new and keep the vehicle flying open-loop for as long as the fault lasts.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,7 +51,7 @@ from sensor_msgs.msg import JointState
 from multirotor_ros.control.gains import GAIN_UNITS, airframe_gains
 from multirotor_ros.control.law import SaturationController
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.model.rotation import quat_to_euler
+from multirotor_ros.model.rotation import FloatArray, quat_to_euler
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
@@ -36,7 +60,11 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.plausibility import NS_PER_S, StampGate, StateLimits, format_vector, jump_refusal
 from multirotor_ros.refusals import Refusal, RefusalCounter
+
+# (p_WB_W, v_WB_W, q_WB, w_WB_B): position and velocity in world ENU, attitude, body rates in FLU.
+State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
 
 
 def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
@@ -58,6 +86,57 @@ def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
         )
     )
     return specs
+
+
+@dataclass
+class OdometryCheck:
+    """The odometry the controller may fly on (see the module docstring); keeps only what it accepts."""
+
+    forget_after_ns: int  # after this long without an accepted odometry, its position is not compared
+    limits: StateLimits = field(default_factory=StateLimits)
+    gate: StampGate = field(default_factory=StampGate)
+    # Arrival on this node's clock [ns], (frame_id, child_frame_id) and p_WB_W of the last accepted one.
+    _last: tuple[int, tuple[str, str], FloatArray] | None = None
+
+    def accept(self, message: Odometry, now_ns: int) -> State | Refusal:
+        """The state of ``message`` if it is plausible at ``now_ns`` (this node's clock), else why not."""
+        state = state_from_odometry(message)
+        if isinstance(state, Refusal):
+            return state
+        p_WB_W, v_WB_W, _, w_WB_B = state
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        refusal = (
+            self.limits.check(p_WB_W=p_WB_W, v_WB_W=v_WB_W, w_WB_B=w_WB_B, what="odometry")
+            or self._unstamped(stamp_ns, now_ns)
+            or self._moved(now_ns, (message.header.frame_id, message.child_frame_id), p_WB_W)
+            # Last: the gate remembers the stamp it accepts, and a refused message must leave no trace.
+            or self.gate.check(stamp_ns, now_ns, "odometry")
+        )
+        if refusal is not None:
+            return refusal
+        self._last = (now_ns, (message.header.frame_id, message.child_frame_id), p_WB_W)
+        return state
+
+    def _unstamped(self, stamp_ns: int, now_ns: int) -> Refusal | None:
+        if stamp_ns == 0 and now_ns > self.gate.future_tolerance_s * NS_PER_S:
+            return Refusal(
+                "unstamped odometry", f"stamp 0 while this node's clock reads {now_ns / NS_PER_S:.3f} s"
+            )
+        return None
+
+    def _moved(self, now_ns: int, frames: tuple[str, str], p_WB_W: FloatArray) -> Refusal | None:
+        if self._last is None or now_ns - self._last[0] > self.forget_after_ns:
+            return None
+        last_ns, last_frames, last_p_WB_W = self._last
+        if frames != last_frames:
+            return Refusal(
+                "wrong frame",
+                f"frame_id {frames[0][:40]!r}, child_frame_id {frames[1][:40]!r}; odometry so far in "
+                f"{last_frames[0]!r}, {last_frames[1]!r}",
+            )
+        # A clock that went back (simulated time restarted) gives no time: only the margin is allowed.
+        dt_s = max(now_ns - last_ns, 0) / NS_PER_S
+        return jump_refusal(last_p_WB_W, p_WB_W, dt_s, self.limits, "odometry position")
 
 
 class ControllerNode(Node):
@@ -82,14 +161,15 @@ class ControllerNode(Node):
         values = declare_parameters(self, specs)
         self.law = SaturationController(self.airframe, gains.replace(**{k: values[k] for k in GAIN_UNITS}))
         self._odom_timeout_ns = round(values["odom_timeout_s"] * 1e9)
-        self._state: tuple[Any, ...] | None = None
-        self._state_stamp_ns = 0
+        self._odometry_check = OdometryCheck(forget_after_ns=self._odom_timeout_ns)
+        self._state: State | None = None
         self._state_received_ns = 0
-        self._target: tuple[np.ndarray, float] | None = None
+        self._target: tuple[FloatArray, float] | None = None
         self._odom_frame = ""
         self._stale = False
         self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
         self._setpoint_refusals = RefusalCounter(self.get_logger().warning, "setpoint")
+        self._output_refusals = RefusalCounter(self.get_logger().error, "own motor_speed_cmd")
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         self.create_subscription(Odometry, "odom", self._on_odom, 10)
@@ -102,18 +182,12 @@ class ControllerNode(Node):
         )
 
     def _on_odom(self, message: Odometry) -> None:
-        state = state_from_odometry(message)
-        stamp_ns = stamp_to_ns(message.header.stamp)
+        now_ns = self.get_clock().now().nanoseconds
+        state = self._odometry_check.accept(message, now_ns)
         if isinstance(state, Refusal):
             self._odom_refusals.refuse(state.reason, state.detail)
             return
-        if stamp_ns < self._state_stamp_ns:
-            self._odom_refusals.refuse(
-                "out-of-order stamp", f"{stamp_ns} ns is older than {self._state_stamp_ns} ns"
-            )
-            return
-        self._state, self._state_stamp_ns = state, stamp_ns
-        self._state_received_ns = self.get_clock().now().nanoseconds
+        self._state, self._state_received_ns = state, now_ns
         self._odom_frame = message.header.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
@@ -122,10 +196,12 @@ class ControllerNode(Node):
         frame = message.header.frame_id
         if frame and self._odom_frame and frame != self._odom_frame:
             self._setpoint_refusals.refuse(
-                "wrong frame", f"frame_id {frame!r}, odometry is in {self._odom_frame!r}"
+                "wrong frame", f"frame_id {frame[:40]!r}, odometry is in {self._odom_frame!r}"
             )
             return
         target = setpoint_from_pose(message)
+        if not isinstance(target, Refusal):
+            target = self._odometry_check.limits.check(p_WB_W=target[0], what="setpoint") or target
         if isinstance(target, Refusal):
             self._setpoint_refusals.refuse(target.reason, target.detail)
             return
@@ -142,8 +218,16 @@ class ControllerNode(Node):
             return
         self._stale = False
         p, v, q, w = self._state
-        output = self.law.update(now.nanoseconds * 1e-9, p, v, q, w, *self._target)
-        self._command_pub.publish(joint_state_from_rotor_speeds(output.omega_cmd_rad_s, now.to_msg()))
+        speeds = self.law.update(now.nanoseconds * 1e-9, p, v, q, w, *self._target).omega_cmd_rad_s
+        if not (np.all(np.isfinite(speeds)) and np.all(speeds >= 0.0)):
+            self._output_refusals.refuse(
+                "non-finite or negative rotor speed",
+                f"{format_vector(speeds)} rad/s from position {format_vector(p)} m, velocity "
+                f"{format_vector(v)} m/s, body rate {format_vector(w)} rad/s: nothing published, law reset",
+            )
+            self.law.reset()
+            return
+        self._command_pub.publish(joint_state_from_rotor_speeds(speeds, now.to_msg()))
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changes = {p.name: float(p.value) for p in parameters if p.name in GAIN_UNITS}
@@ -152,6 +236,7 @@ class ControllerNode(Node):
         for parameter in parameters:
             if parameter.name == "odom_timeout_s":
                 self._odom_timeout_ns = round(float(parameter.value) * 1e9)
+                self._odometry_check.forget_after_ns = self._odom_timeout_ns
 
 
 def main(args: list[str] | None = None) -> int:

@@ -18,6 +18,17 @@ Pacing: ``real_time_factor`` r > 0 runs r x wall time; 0 runs as fast as possibl
 ``publish_clock`` and ``lockstep_lead_s`` > 0, in lockstep with the controller (simulation/pacing.py).
 Stamps are simulated time when ``publish_clock`` is set, else wall time at start + simulated time.
 A namespaced simulator publishes ``<ns>/clock``: remap it (``-r clock:=/clock``) for the graph's clock.
+
+Hostile commands (issue 11) are refused, counted per reason, logged once per reason and then summarised
+(refusals.py); a refused command leaves the last accepted one in force. ``motor_speed_cmd`` must name
+rotor_1..rotor_N once each with as many finite, non-negative speeds no larger than
+``OVERSIZED_SPEED_FACTOR`` x the airframe's top speed (above the top speed they are clamped, as an ESC
+saturates). Its stamp goes through a ``StampGate`` against this node's clock: simulated time when it
+publishes the clock (a sender on that clock cannot be ahead of it: one publish period of slack), else
+the node's ROS clock (0.5 s of slack between processes). A future stamp is refused alone and never kept,
+so the next valid command is accepted; an older stamp than the newest accepted one is out of order.
+A zero stamp means unstamped (``ros2 topic pub`` by hand): the command is taken as of now, without the
+order check and without moving lockstep on; such commands are counted, the first one logged.
 """
 
 from __future__ import annotations
@@ -49,6 +60,7 @@ from multirotor_ros.nodes.messages import (
     stamp_from_ns,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import NS_PER_S, Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
@@ -188,7 +200,13 @@ class SimulatorNode(Node):
         self._frames = (p["frame_prefix"] + "odom", p["frame_prefix"] + "base_link")
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         self._stamp_offset_ns = 0 if p["publish_clock"] else self.get_clock().now().nanoseconds
-        self._newest_stamp_ns = 0
+        self._publish_period_ns = period_ns(p["publish_rate_hz"])
+        self._command_gate = (
+            StampGate(future_tolerance_s=self._publish_period_ns / NS_PER_S)
+            if p["publish_clock"]
+            else StampGate()
+        )
+        self.unstamped_commands = 0
         self._refusals = RefusalCounter(self.get_logger().warning, "motor_speed_cmd")
 
         self._pub = {
@@ -213,7 +231,6 @@ class SimulatorNode(Node):
                 last_command_wall_s=time.monotonic(),
             )
         self._pacer = RealTimePacer(rate if rate > 0 else 1.0)
-        self._publish_period_ns = period_ns(p["publish_rate_hz"])
         # A wall-clock timer drives the physics; at real_time_factor 0 it fires continuously (period 0)
         # unless lockstep lets commands drive it, when it only watches for a controller that went silent.
         wall = steady_clock()
@@ -232,15 +249,16 @@ class SimulatorNode(Node):
 
     def _on_command(self, message: JointState) -> None:
         result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
+        if not isinstance(result, Refusal) and result.stamp_ns:
+            result = self._command_gate.check(result.stamp_ns, self._now_ns(), "motor_speed_cmd") or result
         if isinstance(result, Refusal):
             self._refusals.refuse(result.reason, result.detail)
             return
-        if result.stamp_ns and result.stamp_ns < self._newest_stamp_ns:
-            self._refusals.refuse(
-                "out-of-order stamp", f"{result.stamp_ns} ns is older than {self._newest_stamp_ns} ns"
+        if not result.stamp_ns:
+            self.unstamped_commands += 1
+            self.get_logger().info(
+                "motor_speed_cmd without a stamp: taken as of now (unstamped commands are counted)", once=True
             )
-            return
-        self._newest_stamp_ns = max(self._newest_stamp_ns, result.stamp_ns)
         self.sim.set_command(result.speeds_rad_s)
         if self._lockstep is not None and result.stamp_ns:
             self._lockstep.command(result.stamp_ns - self._stamp_offset_ns, time.monotonic())
@@ -262,6 +280,12 @@ class SimulatorNode(Node):
             self.sim.command_timeout_ns = round(float(changed["command_timeout_s"]) * NS_PER_S)
 
     # ------------------------------------------------------------------ time
+
+    def _now_ns(self) -> int:
+        """This node's clock: the simulated time it publishes, or else its ROS clock."""
+        if self._clock_pub is not None:
+            return self.sim.t_ns
+        return self.get_clock().now().nanoseconds
 
     def _on_timer(self) -> None:
         if self._lockstep is not None:
