@@ -28,7 +28,6 @@ Every ``*_from_*`` reader of a state refuses non-finite values and a quaternion 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -287,16 +286,14 @@ def imu_message(
 
 def simulated_imu_message(stamp: Time, frame_id: str, reading: ImuReading, sensors: SensorConfig) -> Imu:
     """The Imu of a simulated reading, with the per-sample variances of the sensor's white noise."""
-    # A noise density times the root of the sample rate is the standard deviation of one sample.
-    root_rate = math.sqrt(sensors.imu_rate_hz)
     return imu_message(
         stamp,
         frame_id,
         reading.q_WB,
         reading.specific_force_B,
         reading.w_WB_B,
-        accel_var=(sensors.accel_noise_density_m_s2_sqrt_hz * root_rate) ** 2,
-        gyro_var=(sensors.gyro_noise_density_rad_s_sqrt_hz * root_rate) ** 2,
+        accel_var=sensors.accel_sample_std_m_s2**2,
+        gyro_var=sensors.gyro_sample_std_rad_s**2,
         orientation_var=sensors.orientation_noise_rad**2,
     )
 

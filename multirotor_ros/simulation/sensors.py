@@ -77,6 +77,16 @@ class SensorConfig:
                 f"got {self.range_max_m:g}"
             )
 
+    @property
+    def accel_sample_std_m_s2(self) -> float:
+        """Standard deviation of one accelerometer sample's white noise: density x root of the rate."""
+        return self.accel_noise_density_m_s2_sqrt_hz * math.sqrt(self.imu_rate_hz)
+
+    @property
+    def gyro_sample_std_rad_s(self) -> float:
+        """Standard deviation of one gyro sample's white noise: density x root of the rate."""
+        return self.gyro_noise_density_rad_s_sqrt_hz * math.sqrt(self.imu_rate_hz)
+
     def without_noise(self) -> SensorConfig:
         """The same rates and geometry with every noise and bias set to zero (and no quantisation)."""
         quiet = {f.name: 0.0 for f in fields(self) if "noise" in f.name or "bias" in f.name}
@@ -144,14 +154,11 @@ class Imu:
         walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
         self.accel_bias = self.accel_bias + self.rng.normal(0.0, c.accel_bias_stability_m_s2 * walk, 3)
         self.gyro_bias = self.gyro_bias + self.rng.normal(0.0, c.gyro_bias_stability_rad_s * walk, 3)
-        root_rate = math.sqrt(c.imu_rate_hz)
         R_WB = quat_to_matrix(q_WB)
         # Specific force: what an accelerometer measures, R^T (a - g_vec) with g_vec = (0, 0, -g).
         f_B = R_WB.T @ (a_WB_W + np.array([0.0, 0.0, self.gravity_m_s2]))
-        f_B = f_B + self.accel_bias + self.rng.normal(0.0, c.accel_noise_density_m_s2_sqrt_hz * root_rate, 3)
-        w_B = (
-            w_WB_B + self.gyro_bias + self.rng.normal(0.0, c.gyro_noise_density_rad_s_sqrt_hz * root_rate, 3)
-        )
+        f_B = f_B + self.accel_bias + self.rng.normal(0.0, c.accel_sample_std_m_s2, 3)
+        w_B = w_WB_B + self.gyro_bias + self.rng.normal(0.0, c.gyro_sample_std_rad_s, 3)
         q = quat_multiply(q_WB, _small_rotation(self.rng, c.orientation_noise_rad))
         return ImuReading(q / np.linalg.norm(q), f_B, w_B)
 
