@@ -61,7 +61,7 @@ def test_a_repeated_or_older_pose_stamp_is_refused_and_changes_nothing() -> None
     repeated = estimator.pose(10 * MS, np.ones(3), LEVEL)
     older = estimator.pose(5 * MS, np.ones(3), LEVEL)
     assert isinstance(repeated, Refusal) and repeated.reason == "duplicated stamp"
-    assert isinstance(older, Refusal) and older.reason == "out-of-order stamp"
+    assert isinstance(older, Refusal) and older.reason == "stamp out of order"
     np.testing.assert_array_equal(estimator.imu(10 * MS, np.zeros(3), np.zeros(3)).p_WB_W, np.zeros(3))
 
 

@@ -143,12 +143,21 @@ def test_monitor_refuses_repeated_and_older_stamps_and_non_finite_states(x8, nom
     assert monitor.state(stamp, p, v, q, w) == Refused(
         "duplicated stamp", monitor.state(stamp, p, v, q, w).detail
     )
-    assert monitor.state(stamp - 1, p, v, q, w).reason == "out-of-order stamp"
+    assert monitor.state(stamp - 1, p, v, q, w).reason == "stamp out of order"
     assert monitor.rotor_speeds(stamp, omega).reason == "duplicated stamp"
-    assert monitor.rotor_speeds(stamp - 5, omega).reason == "out-of-order stamp"
+    assert monitor.rotor_speeds(stamp - 5, omega).reason == "stamp out of order"
     bad = v.copy()
     bad[1] = math.nan
-    assert monitor.state(stamp + 10_000_000, p, bad, q, w).reason == "non-finite state"
+    assert monitor.state(stamp + 10_000_000, p, bad, q, w).reason == "non-finite velocity"
+    # Finite is not yet plausible: a position 1e308 m away, a jump of 50 m in 10 ms, rotor speeds
+    # above the airframe's maximum (the simulator clamps up to twice that, the identifier must not learn).
+    assert monitor.state(stamp + 10_000_000, p + 1e308, v, q, w).reason == "implausible position"
+    assert monitor.state(stamp + 10_000_000, p + 50.0, v, q, w).reason == "implausible position jump"
+    fast = np.full(8, 1.1 * x8.rotor_speed_max_rad_s)
+    assert monitor.rotor_speeds(stamp + 10_000_000, fast).reason == "rotor speed outside the airframe's range"
+    # None of them was kept: the next valid speeds and state are taken.
+    assert not isinstance(monitor.rotor_speeds(stamp + 10_000_000, omega), Refused)
+    assert not isinstance(monitor.state(stamp + 10_000_000, p, v, q, w), Refused)
 
 
 def test_monitor_skips_samples_without_rotor_speeds_and_warns_of_gaps(x8, nominal_flight):
@@ -266,7 +275,7 @@ def test_identifier_refuses_bad_messages_logs_them_once_and_keeps_publishing(
         assert "read-only" in results["window_s"].reason
         node.assert_running()
     log = node.log_text()
-    for reason in ("wrong rotor count", "non-finite speed", "duplicated stamp", "out-of-order stamp"):
+    for reason in ("wrong rotor count", "non-finite speed", "duplicated stamp", "stamp out of order"):
         assert log.count(f": {reason}:") == 1, (reason, log[-3000:])
     assert (tmp_path / "record" / "state.npz").exists()
     assert (tmp_path / "record" / "segment_0001.csv").exists()

@@ -33,7 +33,7 @@ from multirotor_ros.diagnosis.residuals import ObserverSettings
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.state import StateBatch
 
 HOVER_HEIGHT_M = 3.0
@@ -197,7 +197,7 @@ class ReplayTrace:
 
     first_alarm_t: FloatArray  # (B,) nan: never
     first_rotor: FloatArray  # (B,) 1..N, 0: none
-    first_ambiguous: FloatArray  # (B,) bool
+    first_ambiguous: BoolArray  # (B,)
     final_rotor: FloatArray  # (B,) 0: no alarm at the end
     final_effectiveness: FloatArray  # (B,)
     alarm_before: FloatArray  # (B,) time of the first alarm before ``onset`` (nan: none)

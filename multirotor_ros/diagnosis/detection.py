@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from multirotor_ros.model.airframe import Airframe
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 # Mean absolute deviation of a Gaussian is σ √(2/π).
 _MAD_TO_SIGMA = float(np.sqrt(np.pi / 2))
@@ -84,9 +84,9 @@ class DetectorOutput:
     """The detector's view after one sample, batched over B (rotor indices are 0-based)."""
 
     t: float
-    alarm: FloatArray  # (B,) bool: a rotor is declared faulty
+    alarm: BoolArray  # (B,) a rotor is declared faulty
     rotor: FloatArray  # (B,) int: the faulty (or, without alarm, the most suspect) rotor
-    partner_ambiguous: FloatArray  # (B,) bool: its coaxial partner fits almost as well
+    partner_ambiguous: BoolArray  # (B,) its coaxial partner fits almost as well
     effectiveness: FloatArray  # (B, N): estimated remaining effectiveness, 1 for rotors not in alarm
     loss: FloatArray  # (B, N): this sample's loss estimates δ_i
     loss_std: FloatArray  # (B, N): their standard deviations
@@ -101,7 +101,7 @@ class _State:
     mad: FloatArray
     pending_since: FloatArray
     quiet_since: FloatArray
-    alarm: FloatArray
+    alarm: BoolArray
     rotor: FloatArray
     onset_t: FloatArray
     effectiveness: FloatArray
@@ -157,7 +157,7 @@ class FaultDetector:
         return np.maximum(self._state.mad * _MAD_TO_SIGMA, self._noise_floor)
 
     @property
-    def suspicious(self) -> FloatArray:
+    def suspicious(self) -> BoolArray:
         """(B,) in alarm, or a suspect above threshold waiting for persistence."""
         return self._state.alarm | ~np.isnan(self._state.pending_since)
 

@@ -26,7 +26,7 @@ from multirotor_ros.diagnosis.detection import (
 )
 from multirotor_ros.diagnosis.residuals import ObserverSettings, ResidualSample, WrenchResidualGenerator
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray
 from multirotor_ros.model.state import StateBatch
 
 Level = Literal["OK", "WARN", "ERROR"]
@@ -93,7 +93,7 @@ class RotorDiagnoser:
         return DiagnosisSample(sample, self.last)
 
     @property
-    def any_suspicion(self) -> FloatArray:
+    def any_suspicion(self) -> BoolArray:
         """(B,) detector in alarm or about to be: identification should not learn from that vehicle."""
         return self.detector.suspicious
 

@@ -92,12 +92,7 @@ class SuperTwistingObserver:
         if self.y_hat is None:
             self.reset(y, f)
             return self.estimate
-        if not dt_s > 0:
-            raise ValueError(f"observer step must be positive, got {dt_s} s")
-        # The model rate enters as the mean of its values at both ends of the interval (trapezoid):
-        # rotor speeds ramp between samples during manoeuvres, and holding the old value would leave
-        # half an interval's change as a residual that looks like a fault.
-        self.y_hat = self.y_hat + dt_s * (0.5 * (self._f + f) + self._injection + self.z)
+        self.y_hat = self._predicted(dt_s, f)
         error = y - self.y_hat
         sign = np.sign(error)
         self.z = self.z + dt_s * self.alpha_gain * sign
@@ -109,6 +104,25 @@ class SuperTwistingObserver:
         else:
             self.estimate = self.z.copy()
         return self.estimate
+
+    def prediction_error(self, dt_s: float, y: FloatArray, f: FloatArray) -> FloatArray:
+        """(B, C) how far the measurement y lies from where the observer expected it, per ``dt_s``.
+
+        What :meth:`update` would see, without updating: a measurement that agrees with the model and
+        the current estimate gives noise, a bad one (or the first sample of a fault) a step.
+        """
+        return (y - self._predicted(dt_s, f)) / dt_s
+
+    def _predicted(self, dt_s: float, f: FloatArray) -> FloatArray:
+        """ŷ propagated by ``dt_s`` to a sample whose model rate is f."""
+        if self.y_hat is None:
+            raise ValueError("the observer has not started: no prediction")
+        if not dt_s > 0:
+            raise ValueError(f"observer step must be positive, got {dt_s} s")
+        # The model rate enters as the mean of its values at both ends of the interval (trapezoid):
+        # rotor speeds ramp between samples during manoeuvres, and holding the old value would leave
+        # half an interval's change as a residual that looks like a fault.
+        return self.y_hat + dt_s * (0.5 * (self._f + f) + self._injection + self.z)
 
     def shift_model(self, shift: FloatArray) -> None:
         """The model rate f became f - ``shift`` (B, C): move z and the held f so that f + z stays."""

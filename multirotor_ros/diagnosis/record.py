@@ -204,7 +204,8 @@ class FlightRecord:
         partial = self.directory / (STATE_FILE + ".partial")
         arrays = {key: np.asarray(value) for key, value in state.items()}
         with open(partial, "wb") as handle:
-            np.savez(handle, **arrays)
+            # numpy's stub: mypy checks the unpacked arrays against savez's keyword allow_pickle: bool too.
+            np.savez(handle, **arrays)  # type: ignore[arg-type]
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(partial, final)

@@ -18,11 +18,22 @@ residual does not, because the model is fed the speeds the rotors actually turn 
 Observer gains are scaled per channel to what one stopped rotor does at hover (its thrust over the
 mass, its torques over the inertia), so that every channel converges to a stopped rotor in
 ``convergence_time_s`` and chatters by the same fraction of that signal.
+
+:class:`InnovationGate` keeps a bad sample from driving the observers. A sample whose rotor speeds are
+not the rotors' (plausible, but wrong) gives a model derivative off by a few stopped rotors for one
+step; the sliding mode turns that into a transient that lasts about ``convergence_time_s`` and looks
+like a fault. Before a sample is used, its :meth:`WrenchResidualGenerator.innovation` (how far the
+measurement lies from the observers' one-step prediction, in stopped-rotor units per channel) is
+compared with ``sigma`` times the channel's noise level (the median of the last ``memory`` samples'
+innovations, scaled to a standard deviation; at least ``floor``). Beyond it, the sample is held back
+as missing data, at most ``max_held`` in a row: an innovation that persists is the vehicle (a fault
+delays its detection by ``max_held`` samples), an isolated one is a bad message.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -75,6 +86,39 @@ def stopped_rotor_scales(model: Model) -> tuple[FloatArray, FloatArray]:
     return channel_scale, wrench_scale
 
 
+# Median of |x| over the standard deviation of a Gaussian x.
+_MEDIAN_ABS_TO_SIGMA = 1.0 / 0.6745
+
+
+@dataclass
+class InnovationGate:
+    """Holds back isolated samples that surprise the observer far beyond its noise (module docstring)."""
+
+    sigma: float = 6.0  # noise levels an innovation may reach
+    floor: float = 0.25  # [stopped-rotor units] the gate never closes below this (noise-free data)
+    memory: int = 200  # samples whose median innovation is the noise level; none held before memory / 4
+    max_held: int = 5  # samples held in a row at most
+    _recent: deque[FloatArray] = field(default_factory=deque, repr=False)
+    _held: int = 0
+
+    def admit(self, innovation: FloatArray) -> bool:
+        """Whether the sample of this (C,) innovation may drive the observer."""
+        size = np.abs(innovation)
+        self._recent.append(size)
+        if len(self._recent) > self.memory:
+            self._recent.popleft()
+        if len(self._recent) < self.memory // 4:
+            return True
+        noise = _MEDIAN_ABS_TO_SIGMA * np.median(np.stack(self._recent), axis=0)
+        if not np.any(size > np.maximum(self.sigma * noise, self.floor)):
+            self._held = 0
+            return True
+        if self._held < self.max_held:
+            self._held += 1
+            return False
+        return True
+
+
 class WrenchResidualGenerator:
     """Feeds the observer from measurements and turns its estimate into world and wrench residuals.
 
@@ -86,8 +130,8 @@ class WrenchResidualGenerator:
 
     def __init__(self, model: Model, settings: ObserverSettings | None = None):
         self.settings = settings or ObserverSettings()
-        channel_scale, self.wrench_scale = stopped_rotor_scales(model)
-        lambda_gain, alpha_gain = levant_gains(channel_scale / self.settings.convergence_time_s)
+        self.channel_scale, self.wrench_scale = stopped_rotor_scales(model)
+        lambda_gain, alpha_gain = levant_gains(self.channel_scale / self.settings.convergence_time_s)
         tau = self.settings.filter_time_constant_s
         self.translational = SuperTwistingObserver(lambda_gain[:3], alpha_gain[:3], tau)
         self.rotational = SuperTwistingObserver(lambda_gain[3:], alpha_gain[3:], tau)
@@ -126,6 +170,23 @@ class WrenchResidualGenerator:
         """(B, 4, N) each rotor's own wrench contribution in the model at these states."""
         thrust, drag_torque = self.model.rotor_loads(ctx)
         return rotor_signatures(self.model.airframe, thrust, drag_torque)
+
+    def innovation(self, state: StateBatch, dt_s: float) -> FloatArray | None:
+        """(B, 6) the sample's surprise to the observers in stopped-rotor units, None before they start.
+
+        World x, y, z then body x, y, z: the measurement's distance from the one-step prediction (for a
+        measured acceleration, from the filtered residual), nothing updated (module docstring).
+        """
+        if not self.started:
+            return None
+        a_model_W, w_dot_model_B = self.model.accelerations(self.model.context(state))
+        rotational = self.rotational.prediction_error(dt_s, state.w_WB_B, w_dot_model_B)
+        if state.a_WB_W is None:
+            translational = self.translational.prediction_error(dt_s, state.v_WB_W, a_model_W)
+        else:
+            assert self._measured_accel_residual is not None  # set with the first measurement
+            translational = state.a_WB_W - a_model_W - self._measured_accel_residual
+        return np.concatenate([translational, rotational], axis=1) / self.channel_scale
 
     def update(self, state: StateBatch, dt_s: float) -> ResidualSample:
         """Residuals at a new measurement of B vehicles; ``dt_s`` since the previous one.

@@ -13,7 +13,7 @@ import numpy as np
 
 from multirotor_ros.ident.metrics import AXES
 from multirotor_ros.ident.samples import FlightSamples
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 MAX_POINTS = 2000
 DPI = 80
@@ -39,7 +39,7 @@ def plot_axes(
     path: Path,
     title: str,
     unit: str,
-    rows: FloatArray | None = None,
+    rows: BoolArray | None = None,
 ) -> Path:
     """Three stacked panels (x, y, z): the measured series and each modelled one against time."""
     plt = _pyplot()
@@ -96,7 +96,7 @@ def plot_bars(
 def plot_binned(
     x: FloatArray,
     series: Mapping[str, FloatArray],
-    rows: FloatArray,
+    rows: BoolArray,
     path: Path,
     title: str,
     xlabel: str,

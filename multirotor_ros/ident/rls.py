@@ -21,14 +21,26 @@ optimistic: read them as a lower bound.
 :class:`OnlineIdentifier` is what the identifier node runs: an RLS update per sample and, every
 ``refit_period_s``, a bounded least-squares fit of the samples of the last ``window_s`` from which the
 RLS restarts. Updates refuse non-finite rows (they would poison P for good) and say which entry.
+
+A least-squares estimate follows any sample, so a wrong one (a rotor speed that is not the rotor's, a
+velocity off by a metre per second) must not reach it: before a sample updates the RLS or enters the
+window, :class:`OnlineIdentifier` tests its innovation, the a-priori force residual (its mean square
+over x, y, z; not divided by its predicted variance, which a huge regressor, e.g. of a wrong velocity,
+would inflate until anything passes), against ``gate_sigma``² times the noise level: the median of the
+last ``gate_memory`` samples' innovations (accepted or not), scaled to a mean. A median, because
+bad samples would inflate a mean and open the gate for more of them; it stands as long as fewer than
+half the samples are bad, and it follows a real change of the vehicle (a payload), which moves every
+sample's innovation. A sample beyond the gate is counted (``n_gated``) and dropped; nothing is learnt
+before the median rests on ``gate_memory`` / 4 samples.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -38,10 +50,11 @@ from numpy.typing import ArrayLike
 from multirotor_ros.ident.fit import solve_bounded
 from multirotor_ros.ident.parameters import FittedParameter
 from multirotor_ros.ident.regressors import ForceRegressor, linear_refs, parameter_value, with_values
+from multirotor_ros.ident.settings import FitSettings
 from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.effects import effect_class
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.state import StateBatch
 
 
@@ -106,15 +119,7 @@ class RecursiveLeastSquares:
 
     def update(self, y: ArrayLike, phi: ArrayLike) -> FloatArray:
         """Fold in one sample: y (m,) measured, Φ (m, p) regressors; returns the a-priori residuals (m,)."""
-        ys = np.asarray(y, dtype=float).reshape(-1)
-        rows = np.asarray(phi, dtype=float)
-        if rows.shape != (ys.size, self.n_parameters):
-            if rows.size != ys.size * self.n_parameters:
-                raise RlsError(
-                    f"regressor shape {rows.shape} does not match y ({ys.size} rows) "
-                    f"and {self.n_parameters} parameters"
-                )
-            rows = rows.reshape(ys.size, self.n_parameters)
+        ys, rows = self._rows(y, phi)
         # One reduction catches NaN and infinity anywhere; the slower search below only names the entry.
         if not math.isfinite(float(rows.sum()) + float(ys.sum())):
             self._refuse_non_finite(ys, rows)
@@ -136,6 +141,19 @@ class RecursiveLeastSquares:
         self.covariance = self._bounded(P)
         self.n_updates += 1
         return residuals
+
+    def _rows(self, y: ArrayLike, phi: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """The sample as y (m,) and Φ (m, p); RlsError if their shapes do not fit the parameters."""
+        ys = np.asarray(y, dtype=float).reshape(-1)
+        rows = np.asarray(phi, dtype=float)
+        if rows.shape != (ys.size, self.n_parameters):
+            if rows.size != ys.size * self.n_parameters:
+                raise RlsError(
+                    f"regressor shape {rows.shape} does not match y ({ys.size} rows) "
+                    f"and {self.n_parameters} parameters"
+                )
+            rows = rows.reshape(ys.size, self.n_parameters)
+        return ys, rows
 
     def _bounded(self, P: FloatArray) -> FloatArray:
         """P with no diagonal entry above the prior variance (anti wind-up, see the module docstring)."""
@@ -236,6 +254,10 @@ class OnlineSettings:
     refit_period_s: float = 5.0  # [s] between refits
     forgetting: float = 0.999  # RLS forgetting factor per sample (memory 1/(1-λ) samples)
     min_refit_samples: int = 100  # a refit needs at least this many samples in the window
+    gate_sigma: float = 6.0  # a sample whose force residual exceeds this many noise levels is dropped
+    gate_memory: int = 200  # samples whose median innovation is the gate's noise level
+    # When a refit believes a parameter: the same rule as a fit of a log (identifiable_relative_std).
+    fit_settings: FitSettings = field(default_factory=FitSettings)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.window_s) and self.window_s > 0):
@@ -246,6 +268,10 @@ class OnlineSettings:
             raise ValueError(f"forgetting must be in (0, 1], got {self.forgetting}")
         if self.min_refit_samples < 1:
             raise ValueError(f"min_refit_samples must be >= 1, got {self.min_refit_samples}")
+        if not (math.isfinite(self.gate_sigma) and self.gate_sigma > 0):
+            raise ValueError(f"gate_sigma must be > 0, got {self.gate_sigma}")
+        if self.gate_memory < 4:
+            raise ValueError(f"gate_memory must be >= 4, got {self.gate_memory}")
 
 
 @dataclass(frozen=True)
@@ -304,7 +330,7 @@ def _unit_covariance(A: FloatArray) -> FloatArray:
     return covariance
 
 
-def _at_bound(theta: FloatArray, bound: FloatArray) -> FloatArray:
+def _at_bound(theta: FloatArray, bound: FloatArray) -> BoolArray:
     finite = np.isfinite(bound)
     return finite & (
         np.abs(theta - np.where(finite, bound, 0.0))
@@ -448,12 +474,17 @@ class OnlineIdentifier:
         self._last_t: float | None = None
         self.last_refit: RefitResult | None = None
         self._last_refit_t: float | None = None
+        self.n_gated = 0  # samples dropped by the innovation gate (module docstring)
+        self._innovations: deque[float] = deque(maxlen=self.settings.gate_memory)
 
     # ------------------------------------------------------------------ samples
 
     # Regressors are built for this many samples at once: one Model.wrench call costs about the same for
     # 1 or 10 samples, so batching divides the identifier's CPU load; the RLS still updates per sample.
     REGRESSOR_BATCH = 10
+    # Median over mean of a chi-square with 3 degrees of freedom (x, y, z) divided by 3: the gate's
+    # median noise level, scaled to the mean the gate_sigma threshold speaks of.
+    MEDIAN_TO_MEAN = 1.0 / 0.7887
 
     def add(self, samples: StateBatch) -> None:
         """Queue measured samples of one vehicle (times increasing, ``a_WB_W`` measured, gravity excluded).
@@ -495,9 +526,27 @@ class OnlineIdentifier:
         self._pending = []
         self._n_pending = 0
         y, Phi = self.regressor.from_states(samples)
-        for k in range(samples.size):
-            self.rls.update(y[k], Phi[k])
-        self.window.extend(samples, y, Phi)
+        accepted = np.array([self._admit(y[k], Phi[k]) for k in range(samples.size)], dtype=bool)
+        if accepted.any():
+            self.window.extend(samples.select(accepted), y[accepted], Phi[accepted])
+
+    def _admit(self, y: FloatArray, phi: FloatArray) -> bool:
+        """Update the RLS with one sample if it passes the innovation gate (module docstring)."""
+        with np.errstate(all="ignore"):
+            residual = y - phi @ self.rls.theta
+            innovation = float(residual @ residual) / residual.size
+        if not math.isfinite(innovation):
+            self.n_gated += 1
+            return False
+        self._innovations.append(innovation)
+        if len(self._innovations) < self.settings.gate_memory // 4:
+            return False
+        level = self.MEDIAN_TO_MEAN * float(np.median(self._innovations))
+        if innovation > self.settings.gate_sigma**2 * level:
+            self.n_gated += 1
+            return False
+        self.rls.update(y, phi)
+        return True
 
     def load_window(self, samples: StateBatch) -> None:
         """Fill the window with recorded samples (times increasing, accelerations given).
@@ -554,7 +603,10 @@ class OnlineIdentifier:
         std = np.sqrt(np.maximum(np.diag(covariance_unit) * sigma2 * inflation, 0.0))
         # A parameter this window cannot tell from nothing keeps its trusted value; the others are
         # solved again with it held (parameters.py's identifiability rule).
-        identifiable = std <= 0.5 * np.maximum(np.abs(theta - self.neutral), self.scale)
+        allowed = self.settings.fit_settings.identifiable_relative_std * np.maximum(
+            np.abs(theta - self.neutral), self.scale
+        )
+        identifiable = std <= allowed
         if not identifiable.all():
             held = ~identifiable
             theta[held] = self.trusted[held]

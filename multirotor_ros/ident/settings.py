@@ -3,6 +3,8 @@
 :func:`multirotor_ros.ident.samples.load_samples` takes a :class:`FitSettings` (the defaults when none is
 given) and the :class:`~multirotor_ros.ident.samples.FlightSamples` it returns carry it into every fit of
 that log (:mod:`multirotor_ros.ident.fit`), so that a log is prepared and judged with one set of numbers.
+The online identifier (:class:`multirotor_ros.ident.rls.OnlineSettings`) judges its refits by the same
+``identifiable_relative_std``.
 """
 
 from __future__ import annotations

@@ -16,14 +16,23 @@ ident/pose_imu.py).
 ``identified_parameters`` and ``diagnostics`` every 1/``publish_rate_hz`` of wall time, and the record
 is flushed every second. Stamps come from the messages, so the node follows simulated time as it is.
 
-Bad input never stops the node: a message that fails validation (wrong rotor count or names,
-non-finite values, a stamp that repeats or goes back) is refused, counted, and logged once per reason
-with throttled summaries after; gaps in the state messages are logged as warnings and restart the
-observer. Detection thresholds are parameters ``detection.*`` that ``ros2 param set`` may change.
+Bad input never stops the node nor moves an estimate. A message that fails validation is refused,
+counted, and logged once per reason with throttled summaries after: wrong rotor count or names,
+values that are not finite or not physically plausible (multirotor_ros.plausibility: positions,
+speeds, rates, accelerations, a position jump since the last accepted one, rotor speeds above the
+airframe's maximum), a stamp that repeats, goes back, or lies more than ``future_stamp_tolerance_s``
+ahead of the node's clock (refused alone, never kept as the newest; under ``use_sim_time`` that holds
+every message until the first ``clock``). Samples that pass are still gated on their force residual
+before the identifier learns from them (ident/rls.py). Gaps in the state messages are logged as
+warnings and restart the observer. An exception in a callback or timer (a bug, not bad input) is
+logged once per kind with a count and the node goes on. Detection thresholds are parameters
+``detection.*`` that ``ros2 param set`` may change.
 """
 
 from __future__ import annotations
 
+import traceback
+from collections.abc import Callable
 from dataclasses import fields
 from typing import Any
 
@@ -53,6 +62,7 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
@@ -162,6 +172,15 @@ def identifier_parameters() -> list[NodeParameter]:
             read_only=True,
         ),
         NodeParameter(
+            "future_stamp_tolerance_s",
+            0.5,
+            "a message stamped further ahead of this node's clock is refused",
+            "s",
+            0.0,
+            60.0,
+            read_only=True,
+        ),
+        NodeParameter(
             "publish_rate_hz",
             10.0,
             "rate of identified_parameters and diagnostics",
@@ -226,17 +245,30 @@ class IdentifierNode(Node):
             "state": RefusalCounter(logger.warning, "odom" if p["input"] == "odom" else "pose/imu"),
         }
         self._skipped = RefusalCounter(logger.warning, "state samples (unusable)")
+        self._internal_errors = RefusalCounter(
+            logger.error, "a callback's work (internal error; the node goes on)"
+        )
+        # One gate per topic: the topics' stamps need not be in order with each other.
+        self._stamps = {
+            topic: StampGate(p["future_stamp_tolerance_s"])
+            for topic in ("motor_speeds", "odom", "pose", "imu")
+        }
         self._last_stamp_ns = 0
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
         self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        self.create_subscription(JointState, "motor_speeds", self._on_motor_speeds, QUEUE_DEPTH)
+        self.create_subscription(
+            JointState, "motor_speeds", self._guarded(self._on_motor_speeds), QUEUE_DEPTH
+        )
         if p["input"] == "odom":
-            self.create_subscription(Odometry, "odom", self._on_odometry, QUEUE_DEPTH)
+            self.create_subscription(Odometry, "odom", self._guarded(self._on_odometry), QUEUE_DEPTH)
         else:
             self._fusion = PoseImuFusion(
-                self.monitor.diagnoser.model.gravity_m_s2, p["max_gap_s"], p["motor_speed_max_age_s"]
+                self.monitor.diagnoser.model.gravity_m_s2,
+                p["max_gap_s"],
+                p["motor_speed_max_age_s"],
+                limits=self.monitor.limits,
             )
             # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
             sensor_qos = QoSProfile(
@@ -244,13 +276,13 @@ class IdentifierNode(Node):
                 reliability=ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.VOLATILE,
             )
-            self.create_subscription(PoseStamped, "pose", self._on_pose, sensor_qos)
-            self.create_subscription(Imu, "imu", self._on_imu, sensor_qos)
+            self.create_subscription(PoseStamped, "pose", self._guarded(self._on_pose), sensor_qos)
+            self.create_subscription(Imu, "imu", self._guarded(self._on_imu), sensor_qos)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         wall = steady_clock()
-        self.create_timer(1.0 / p["publish_rate_hz"], self._publish_status, clock=wall)
-        self.create_timer(1.0, self._flush_record, clock=wall)
+        self.create_timer(1.0 / p["publish_rate_hz"], self._guarded(self._publish_status), clock=wall)
+        self.create_timer(1.0, self._guarded(self._flush_record), clock=wall)
         for note in self.monitor.notes:
             logger.info(f"record: {note}")
         logger.info(
@@ -288,18 +320,35 @@ class IdentifierNode(Node):
 
     # ------------------------------------------------------------------ inputs
 
+    def _guarded(self, work: Callable[..., None]) -> Callable[..., None]:
+        """``work`` such that an exception it raises is counted and logged (once per kind), not fatal.
+
+        Bad input is refused before it gets here; an exception is a bug, and one bug must not stop the
+        identification of a flying vehicle.
+        """
+
+        def run(*args: Any) -> None:
+            try:
+                work(*args)
+            except Exception as error:  # noqa: BLE001 (see the docstring)
+                self._internal_errors.refuse(
+                    f"{type(error).__name__} in {work.__name__}", f"{error}\n{traceback.format_exc()}"
+                )
+
+        return run
+
+    def _stamp_refusal(self, topic: str, stamp: Any) -> Refusal | None:
+        """Why a message's stamp is refused (in the future by the node's clock, or older), or None."""
+        return self._stamps[topic].check(stamp_to_ns(stamp), self.get_clock().now().nanoseconds, topic)
+
     def _on_motor_speeds(self, message: JointState) -> None:
         result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
         if isinstance(result, Refusal):
             self._refused["motor_speeds"].refuse(result.reason, result.detail)
             return
-        try:
-            outcome = self.monitor.rotor_speeds(result.stamp_ns, result.speeds_rad_s)
-        except (ValueError, ArithmeticError) as error:
-            # The monitor validates its inputs; anything that still fails is counted, not fatal.
-            self._refused["motor_speeds"].refuse("could not be processed", f"{type(error).__name__}: {error}")
-            return
-        if isinstance(outcome, Refused):
+        refusal = self._stamp_refusal("motor_speeds", message.header.stamp)
+        outcome = refusal or self.monitor.rotor_speeds(result.stamp_ns, result.speeds_rad_s)
+        if isinstance(outcome, (Refused, Refusal)):
             self._refused["motor_speeds"].refuse(outcome.reason, outcome.detail)
             return
         for step in outcome:
@@ -307,40 +356,41 @@ class IdentifierNode(Node):
 
     def _on_odometry(self, message: Odometry) -> None:
         state = state_from_odometry(message)
-        if isinstance(state, Refusal):
-            self._refused["state"].refuse(state.reason, state.detail)
+        refusal = state if isinstance(state, Refusal) else self._stamp_refusal("odom", message.header.stamp)
+        if refusal is not None:
+            self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
+        assert not isinstance(state, Refusal)
         self._take(StateSample(stamp_to_ns(message.header.stamp), *state))
 
     def _on_pose(self, message: PoseStamped) -> None:
         pose = pose_from_message(message)
-        if isinstance(pose, Refusal):
-            self._refused["state"].refuse(pose.reason, pose.detail)
-            return
-        refusal = self._fusion.pose(stamp_to_ns(message.header.stamp), *pose)
+        refusal = pose if isinstance(pose, Refusal) else self._stamp_refusal("pose", message.header.stamp)
+        if refusal is None:
+            assert not isinstance(pose, Refusal)
+            refusal = self._fusion.pose(stamp_to_ns(message.header.stamp), *pose)
         if refusal is not None:
             self._refused["state"].refuse(refusal.reason, refusal.detail)
 
     def _on_imu(self, message: Imu) -> None:
         imu = imu_from_message(message)
-        if isinstance(imu, Refusal):
-            self._refused["state"].refuse(imu.reason, imu.detail)
+        refusal = imu if isinstance(imu, Refusal) else self._stamp_refusal("imu", message.header.stamp)
+        if refusal is not None:
+            self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
+        assert not isinstance(imu, Refusal)
         sample = self._fusion.imu(stamp_to_ns(message.header.stamp), *imu)
         if isinstance(sample, Unpaired):
             self._skipped.refuse(sample.reason, sample.detail)
-            return
-        self._take(sample)
+        elif isinstance(sample, Refusal):
+            self._refused["state"].refuse(sample.reason, sample.detail)
+        else:
+            self._take(sample)
 
     def _take(self, sample: StateSample) -> None:
-        try:
-            outcome = self.monitor.state(
-                sample.stamp_ns, sample.p_WB_W, sample.v_WB_W, sample.q_WB, sample.w_WB_B, sample.a_WB_W
-            )
-        except (ValueError, ArithmeticError) as error:
-            # The monitor validates its inputs; anything that still fails is counted, not fatal.
-            self._refused["state"].refuse("could not be processed", f"{type(error).__name__}: {error}")
-            return
+        outcome = self.monitor.state(
+            sample.stamp_ns, sample.p_WB_W, sample.v_WB_W, sample.q_WB, sample.w_WB_B, sample.a_WB_W
+        )
         if isinstance(outcome, Refused):
             self._refused["state"].refuse(outcome.reason, outcome.detail)
             return
@@ -354,12 +404,8 @@ class IdentifierNode(Node):
             self.get_logger().warning(warning, throttle_duration_sec=5.0)
         for event in result.events:
             self.get_logger().info(event)
-        if result.skipped == "no recent motor_speeds":
-            self._skipped.refuse(
-                result.skipped,
-                f"state at {result.stamp_ns} ns has no rotor speeds within "
-                f"{self._params['motor_speed_max_age_s']:g} s",
-            )
+        if result.skipped not in (None, "resting"):
+            self._skipped.refuse(result.skipped, result.skipped_detail)
         if result.accel_residual_W is not None:
             self._last_stamp_ns = result.stamp_ns
             message = Vector3Stamped()
@@ -369,7 +415,8 @@ class IdentifierNode(Node):
             self._residuals_pub.publish(message)
         if result.refit is not None:
             refit = result.refit
-            self.get_logger().info(
+            # Routine (every refit_period_s of stamps): the estimates are on identified_parameters.
+            self.get_logger().debug(
                 f"refit at t = {refit.t + self.monitor.clock_offset_s:.1f} s over {refit.n_samples} samples "
                 f"in {1e3 * refit.duration_s:.1f} ms: "
                 + ", ".join(
@@ -414,6 +461,8 @@ class IdentifierNode(Node):
             unclear = [e.name for e in estimates if (e.effect_id, e.name) in held]
             bounded = [e.name for e in estimates if e.at_bound]
             text = f"running estimate over {identifier.n_samples} samples"
+            if identifier.n_gated:
+                text += f" ({identifier.n_gated} more dropped: force residual beyond the innovation gate)"
             if refit is not None:
                 refit_s = refit.t + self.monitor.clock_offset_s
                 text += f"; last refit at t = {refit_s:.1f} s over {refit.n_samples} samples"
