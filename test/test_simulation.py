@@ -16,7 +16,14 @@ from multirotor_ros.io.flight_log import read_flight_log
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import airframe_from_dict, load_airframe
 from multirotor_ros.model.rotation import euler_to_matrix
-from multirotor_ros.simulation.flight import SetpointError, read_setpoints
+from multirotor_ros.simulation.flight import (
+    ControlTrace,
+    FaultTolerance,
+    ReportedFault,
+    SetpointError,
+    read_setpoints,
+    simulate_flight,
+)
 from multirotor_ros.simulation.pacing import Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, range_reading, sensor_config_from_section
 from multirotor_ros.simulation.vehicle import NS_PER_S, VehicleSimulator
@@ -354,3 +361,57 @@ def _yaml(airframe):
     import yaml
 
     return yaml.safe_load(airframe.source_path.read_text(encoding="utf-8"))
+
+
+# ------------------------------------------------------------------ fault-tolerant flight
+
+
+def _hover(airframe, **options):
+    trace = ControlTrace()
+    log = simulate_flight(
+        airframe,
+        setpoints=[(0.0, 0.0, 0.0, 2.0, 0.0)],
+        duration_s=3.0,
+        rng=np.random.default_rng(3),
+        initial_position_m=(0.0, 0.0, 2.0),
+        trace=trace,
+        **options,
+    )
+    return log, trace
+
+
+def test_in_the_loop_diagnosis_leaves_a_healthy_flight_as_it_was(x8) -> None:
+    plain, plain_trace = _hover(x8)
+    diagnosed, trace = _hover(x8, fault_tolerance=FaultTolerance())
+    for name, column in plain.columns.items():
+        np.testing.assert_array_equal(diagnosed.columns[name], column, err_msg=name)
+    assert math.isnan(trace.detection_t_s) and trace.detected_motor == 0
+    assert len(trace.t) == 3 * 250  # one row per control step
+    np.testing.assert_array_equal(trace.effectiveness, np.ones((750, 8)))
+    np.testing.assert_array_equal(trace.position_error_W, plain_trace.position_error_W)
+
+
+def test_a_fault_is_detected_in_the_loop_and_reallocated_only_when_asked(x8) -> None:
+    fault = [*x8.effect_specs(), {"id": "actuator_fault", "motor": 2, "effectiveness": 0.0, "t_fault_s": 2.0}]
+    _, on = _hover(x8, effects=fault, fault_tolerance=FaultTolerance())
+    _, off = _hover(x8, effects=fault, fault_tolerance=FaultTolerance(reallocation=False))
+    for trace in (on, off):
+        assert trace.detected_motor == 2
+        assert 2.0 < trace.detection_t_s < 2.2
+    assert on.effectiveness[-1, 1] < 0.5 and np.all(on.effectiveness[-1, [0, *range(2, 8)]] == 1.0)
+    np.testing.assert_array_equal(off.effectiveness, 1.0)
+    # The filter moves smoothly: no step of the effectiveness in use is a jump.
+    assert np.abs(np.diff(on.effectiveness, axis=0)).max() < 0.1
+
+
+def test_a_reported_diagnosis_replaces_the_diagnosers(x8) -> None:
+    _, trace = _hover(x8, fault_tolerance=FaultTolerance(reported=ReportedFault(4, 0.7, 1.0)))
+    assert trace.effectiveness[trace.t < 1.0, 3].min() == 1.0
+    assert trace.effectiveness[-1, 3] == pytest.approx(0.7, abs=0.01)
+
+
+def test_impossible_fault_tolerance_settings_are_refused(x8) -> None:
+    with pytest.raises(ValueError, match="motor must be in 1..8"):
+        _hover(x8, fault_tolerance=FaultTolerance(reported=ReportedFault(9, 0.5, 1.0)))
+    with pytest.raises(ValueError, match="velocity_noise_m_s"):
+        FaultTolerance(velocity_noise_m_s=-1.0)

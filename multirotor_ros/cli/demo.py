@@ -5,6 +5,13 @@ Starts the simulator, the controller and (when this install has it) the identifi
 (real_time_factor 0, the simulator's clock), so that the flight is the same on a fast or a busy machine.
 It sends the setpoints, injects a rotor fault halfway with a parameter set, prints a live status line,
 a summary, what the identifier reported on ``diagnostics``, and can save a plot of the flight.
+
+The controller reallocates around the rotor the identifier diagnoses (``rotor_effectiveness``); the
+effectiveness it uses is not published, so the demo recomputes it from the same topic with the
+controller's own filter and settings (nodes/controller.py) on the odometry's clock: the live line shows
+it, and the summary splits the position error at the fault and at the start of the reallocation.
+``--no-reallocation`` flies the same with the controller's ``fault_tolerant_allocation`` off; the split
+is then where the reallocation would have started.
 """
 
 from __future__ import annotations
@@ -58,6 +65,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", help="save a plot of the flight")
     parser.add_argument("--no-identifier", action="store_true", help="do not start the identifier node")
     parser.add_argument(
+        "--no-reallocation",
+        action="store_true",
+        help="the controller keeps the nominal allocation (fault_tolerant_allocation false)",
+    )
+    parser.add_argument(
         "--logs", metavar="DIR", help="directory for the nodes' output (default: a temporary one)"
     )
 
@@ -72,6 +84,9 @@ class FlightRecord:
     speeds_t: list[float] = field(default_factory=list)
     speeds: list[list[float]] = field(default_factory=list)
     diagnostics: list[tuple[float, list[tuple[str, int, str]]]] = field(default_factory=list)
+    # The controller's effectiveness in use, recomputed (module docstring): one row per odometry sample.
+    effectiveness: list[Any] = field(default_factory=list)
+    reallocated_at: float | None = None  # [s] simulated time the reallocation started (or would have)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -165,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
         ],
     )
     sim_time = ["-p", "use_sim_time:=true", "-r", f"/clock:={NAMESPACE}/clock"]
-    nodes.start("controller", [*airframe_arg, *sim_time])
+    reallocation = ["-p", f"fault_tolerant_allocation:={'false' if args.no_reallocation else 'true'}"]
+    nodes.start("controller", [*airframe_arg, *sim_time, *reallocation])
     if identifier:
         nodes.start("identifier", [*airframe_arg, *sim_time])
     record = FlightRecord()
@@ -189,8 +205,13 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     from nav_msgs.msg import Odometry
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
 
+    from multirotor_ros.control.fault_tolerance import EffectivenessFilter
+    from multirotor_ros.nodes.controller import REALLOCATION_NOTICE
+    from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
     from multirotor_ros.nodes.messages import stamp_to_s
+    from multirotor_ros.refusals import Refusal
 
     context = rclpy.Context()
     rclpy.init(args=["multirotor_demo"], context=context)
@@ -198,13 +219,26 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
 
+    in_use = EffectivenessFilter(airframe.n_rotors)  # as the controller's (module docstring)
+    diagnosis: list[Any] = [None, None]  # (estimate, std) of the latest rotor_effectiveness
+
     def on_odom(message: Odometry) -> None:
         p = message.pose.pose.position
         t = stamp_to_s(message.header.stamp)
+        effectiveness = in_use.update(t, *diagnosis)
         with record.lock:
             record.t.append(t)
             record.position.append((p.x, p.y, p.z))
             record.target.append(target_at(t)[:3])
+            record.effectiveness.append(effectiveness)
+            reduced = effectiveness.min() < 1.0 - REALLOCATION_NOTICE
+            if record.reallocated_at is None and t >= FAULT_TIME_S and reduced:
+                record.reallocated_at = t
+
+    def on_effectiveness(message: Float64MultiArray) -> None:
+        received = effectiveness_from_message(message, airframe.n_rotors)
+        if not isinstance(received, Refusal):
+            diagnosis[:] = received
 
     def on_speeds(message: JointState) -> None:
         with record.lock:
@@ -230,6 +264,7 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     node.create_subscription(Odometry, "odom", on_odom, 10)
     node.create_subscription(JointState, "motor_speeds", on_speeds, 10)
     node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, 10)
+    node.create_subscription(Float64MultiArray, "rotor_effectiveness", on_effectiveness, 10)
     setpoints = node.create_publisher(PoseStamped, "setpoint", 10)
 
     def spin() -> None:
@@ -257,6 +292,7 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
             with record.lock:
                 t, position = record.t[-1], record.position[-1]
                 speeds = record.speeds[-1] if record.speeds else []
+                effectiveness = record.effectiveness[-1]
             if t >= FLIGHT_S:
                 break
             if t > last_progress[1]:
@@ -284,7 +320,8 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
                 line = (
                     f"t = {t:5.2f} s  "
                     f"position ({position[0]:5.2f}, {position[1]:5.2f}, {position[2]:5.2f}) m  "
-                    f"error {error:5.3f} m  rotors {rotor_text}"
+                    f"error {error:5.3f} m  rotors {rotor_text}  "
+                    f"{_effectiveness_text(effectiveness, args.no_reallocation)}"
                 )
                 print("\r" + line if live else line, end="" if live else "\n", flush=True)
             time.sleep(0.02)
@@ -297,6 +334,16 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
         spinner.join(timeout=5.0)
         node.destroy_node()
         context.try_shutdown()
+
+
+def _effectiveness_text(effectiveness: Any, reallocation_off: bool) -> str:
+    """The effectiveness in use, for the live line: the reduced rotors, or 'nominal'."""
+    reduced = [f"rotor {k + 1} {e:.2f}" for k, e in enumerate(effectiveness) if e < 0.995]
+    if reallocation_off:
+        return "allocation nominal (reallocation off" + (
+            f"; diagnosed {', '.join(reduced)})" if reduced else ")"
+        )
+    return "effectiveness " + (", ".join(reduced) if reduced else "all 1")
 
 
 def _wait(condition: Any, timeout: float, nodes: NodeProcesses, what: str) -> None:
@@ -348,18 +395,16 @@ def _summary(
 
     t = np.array(record.t)
     error = np.linalg.norm(np.array(record.position) - np.array(record.target), axis=1)
-    before = (t >= TRAJECTORY[1][0]) & (t < FAULT_TIME_S)
-    after = t >= FAULT_TIME_S + 2.0
     print("summary")
     print(
         f"  flew {t[-1]:.1f} s of simulated time in {wall_s:.1f} s of wall time "
         f"({t[-1] / wall_s:.2f} x real time, start-up included)"
     )
-    print(
-        f"  position error: RMS {np.sqrt(np.mean(error[before] ** 2)):.3f} m "
-        "before the fault (after take-off), "
-        f"RMS {np.sqrt(np.mean(error[after] ** 2)):.3f} m after it, max {error.max():.3f} m"
-    )
+    print("  position error (RMS, max):")
+    for label, (start, end) in _phases(args, record).items():
+        inside = error[(t >= start) & (t < end)]
+        figures = f"{np.sqrt(np.mean(inside**2)):.3f} m, {inside.max():.3f} m" if inside.size else "-"
+        print(f"    {label:<60} {figures}")
     final = record.position[-1]
     print(f"  final position ({final[0]:.2f}, {final[1]:.2f}, {final[2]:.2f}) m, target {record.target[-1]}")
     if args.fault_motor:
@@ -378,6 +423,23 @@ def _summary(
     bad = {name: status for name, status in statuses.items() if status != 0}
     if bad:
         print(f"  nodes that did not end cleanly: {bad}")
+
+
+def _phases(args: argparse.Namespace, record: FlightRecord) -> dict[str, tuple[float, float]]:
+    """Label -> [start, end) of simulated time: before the fault, until the reallocation, after it."""
+    take_off_done, end = TRAJECTORY[1][0], math.inf
+    if not args.fault_motor:
+        return {f"after take-off (t >= {take_off_done:g} s), no fault": (take_off_done, end)}
+    fault = FAULT_TIME_S
+    phases = {f"before the fault ({take_off_done:g} s <= t < {fault:g} s)": (take_off_done, fault)}
+    reallocated = record.reallocated_at
+    if reallocated is None:
+        phases["after the fault (no diagnosis, no reallocation)"] = (fault, end)
+        return phases
+    what = "reallocation would have started (off)" if args.no_reallocation else "reallocation"
+    phases[f"fault -> {what} at {reallocated:.2f} s"] = (fault, reallocated)
+    phases[f"after it (t >= {reallocated:.2f} s)"] = (reallocated, end)
+    return phases
 
 
 def _plot(path: str, airframe: Any, record: FlightRecord, fault_motor: int) -> None:

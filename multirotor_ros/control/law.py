@@ -123,8 +123,13 @@ class SaturationController:
         w_WB_B: Components,
         p_desired_W: Components,
         yaw_desired_rad: float,
+        effectiveness: ArrayLike | None = None,
     ) -> ControlOutput:
-        """Rotor speed commands for the current state and the wanted position and yaw."""
+        """Rotor speed commands for the current state and the wanted position and yaw.
+
+        ``effectiveness``: (N,) share of its nominal thrust each rotor gives (None = all healthy), passed
+        to the allocator (B diag(e), dead rotors left out); the gains do not change with it.
+        """
         g = self.gains
         gravity = self.gravity_m_s2
         p = [float(c) for c in p_WB_W]
@@ -170,7 +175,7 @@ class SaturationController:
         alpha_psi = g.k_ppsi * e_psi - g.k_dpsi * dpsi + g.k_ipsi * self._integral_psi
 
         torque = self._inertia * np.array([alpha_phi, alpha_theta, alpha_psi])
-        allocation = self.allocator.allocate(thrust, torque)
+        allocation = self.allocator.allocate(thrust, torque, effectiveness)
         # Anti-windup: while the rotors cannot give what is asked, integrating the error would only wind up.
         thrust_short = allocation.thrust_N < thrust - 1e-9 and e_z > 0
         thrust_over = allocation.thrust_N > thrust + 1e-9 and e_z < 0

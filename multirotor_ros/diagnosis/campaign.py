@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -37,6 +37,21 @@ from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.state import StateBatch
 
 HOVER_HEIGHT_M = 3.0
+
+
+def map_in_processes[Job, Result](
+    function: Callable[[Job], Result], jobs: Sequence[Job], processes: int = 1
+) -> list[Result]:
+    """``[function(job) for job in jobs]``, in ``processes`` worker processes when > 1.
+
+    ``function`` must be a module-level function (the workers import it).
+    """
+    if processes <= 1:
+        return [function(job) for job in jobs]
+    # Fresh interpreters, not forks: a fork of a process whose numba kernels already ran on OpenMP
+    # threads (or that holds rclpy's threads, as a test session may) is unsafe and dies in the child.
+    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(function, jobs))
 
 
 def required_delay_s(effectiveness: float) -> float:
@@ -104,7 +119,7 @@ def campaign_cases(
     return cases
 
 
-def _waypoints(
+def waypoints(
     rng: np.random.Generator, duration_s: float, every_s: float
 ) -> list[tuple[float, float, float, float, float]]:
     """Waypoints (t, x, y, z, yaw) every ``every_s``: ±1.5 m around the start, 2..4 m high, yaw ±0.6 rad."""
@@ -140,7 +155,7 @@ def fly_case(
     return simulate_flight(
         airframe,
         effects,
-        setpoints=_waypoints(rng, duration_s, waypoint_every_s),
+        setpoints=waypoints(rng, duration_s, waypoint_every_s),
         duration_s=duration_s,
         rng=rng,
         initial_position_m=(0.0, 0.0, HOVER_HEIGHT_M),
@@ -266,13 +281,7 @@ def fly_all(
     airframe: Airframe, cases: Sequence[FaultCase], duration_s: float, processes: int = 1
 ) -> list[FlightLog]:
     """Fly every case (in ``processes`` worker processes when > 1)."""
-    jobs = [(airframe, case, duration_s) for case in cases]
-    if processes <= 1:
-        return [_fly(job) for job in jobs]
-    # Fresh interpreters, not forks: a fork of a process whose numba kernels already ran on OpenMP
-    # threads (or that holds rclpy's threads, as a test session may) is unsafe and dies in the child.
-    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(_fly, jobs))
+    return map_in_processes(_fly, [(airframe, case, duration_s) for case in cases], processes)
 
 
 @dataclass(frozen=True)

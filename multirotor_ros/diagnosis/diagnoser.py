@@ -26,10 +26,12 @@ from multirotor_ros.diagnosis.detection import (
 )
 from multirotor_ros.diagnosis.residuals import ObserverSettings, ResidualSample, WrenchResidualGenerator
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import BoolArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.state import StateBatch
 
 Level = Literal["OK", "WARN", "ERROR"]
+# Standard deviation of an effectiveness about which nothing is known (RotorDiagnoser.effectiveness).
+UNKNOWN_EFFECTIVENESS_STD = 1.0
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,31 @@ class RotorDiagnoser:
     def any_suspicion(self) -> BoolArray:
         """(B,) detector in alarm or about to be: identification should not learn from that vehicle."""
         return self.detector.suspicious
+
+    def effectiveness(self, vehicle: int = 0) -> tuple[FloatArray, FloatArray]:
+        """(N,) estimated remaining effectiveness of each rotor of ``vehicle`` and (N,) its std.
+
+        What the ``rotor_effectiveness`` topic carries and a fault-tolerant controller reads. Before the
+        detector has learnt the residual noise (the observer converging), nothing is known: 1 with std
+        ``UNKNOWN_EFFECTIVENESS_STD``. Then a healthy rotor is 1 and the rotor in alarm has the
+        detector's averaged estimate, each with the standard deviation of one sample's loss estimate
+        (the averaged one is surer: an upper bound), at most ``UNKNOWN_EFFECTIVENESS_STD``. When the
+        faulty rotor's coaxial partner fits almost as well, either may be the healthy one: both get a
+        standard deviation of at least the estimated loss.
+        """
+        n = self.partners.size
+        output = self.last
+        if output is None or output.warming_up:
+            return np.ones(n), np.full(n, UNKNOWN_EFFECTIVENESS_STD)
+        estimate = output.effectiveness[vehicle].copy()
+        std = np.minimum(
+            np.nan_to_num(output.loss_std[vehicle], nan=UNKNOWN_EFFECTIVENESS_STD), UNKNOWN_EFFECTIVENESS_STD
+        )
+        if output.alarm[vehicle] and output.partner_ambiguous[vehicle]:
+            faulty = int(output.rotor[vehicle])
+            pair = [faulty, int(self.partners[faulty])]
+            std[pair] = np.maximum(std[pair], 1.0 - estimate[faulty])
+        return estimate, std
 
 
 @dataclass(frozen=True)

@@ -517,6 +517,13 @@ class FlightMonitor:
             clock_offset_s=self.clock_offset_s,
         )
 
+    def effectiveness(self) -> tuple[FloatArray, FloatArray]:
+        """(N,) estimated remaining effectiveness of each rotor and (N,) its standard deviation.
+
+        What the node publishes on ``rotor_effectiveness``; see ``RotorDiagnoser.effectiveness``.
+        """
+        return self.diagnoser.effectiveness()
+
     @property
     def clock_offset_s(self) -> float:
         """Stamp [s] of time 0 of the monitor's times (t of results, refits, the record)."""

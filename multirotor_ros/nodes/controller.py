@@ -4,7 +4,9 @@ Wiring::
 
     odom (Odometry) --------> validate -> latest state --+
     setpoint (PoseStamped) -> validate -> latest target -+-> SaturationController (control/), every
-                                                             1/rate_hz of the node's clock -> motor_speed_cmd
+                                                         |   1/rate_hz of the node's clock -> motor_speed_cmd
+    rotor_effectiveness ----> validate -> latest -> EffectivenessFilter -+  (effectiveness of each rotor)
+      (Float64MultiArray)                           (control/fault_tolerance.py)
 
 The timer runs on the node's clock, so with ``use_sim_time`` the law runs at ``rate_hz`` of simulated
 time and each command is stamped with the simulated time it was computed at. Until the first setpoint
@@ -12,6 +14,21 @@ the vehicle holds the pose of the first odometry it received. With no odometry f
 the node stops sending commands (warning logged once) and the simulator's watchdog stops the rotors.
 Gains: parameters under the paper's names, defaults from the airframe YAML's ``controller`` section,
 settable at run time (validated; the integrals are rescaled so the output does not jump).
+
+Fault-tolerant allocation (issue 15): the identifier's ``rotor_effectiveness`` (each rotor's estimated
+remaining effectiveness and its standard deviation; layout in nodes/effectiveness_message.py) goes
+through an ``EffectivenessFilter`` every period, whose output the allocator uses (B diag(e): a stopped
+rotor is left out, thrust, roll and pitch first, yaw given up where it must). The filter moves with
+first-order dynamics, so a diagnosis that appears or clears causes no jump in the commands; it takes
+unconfident estimates as healthy and keeps a rotor not diagnosed as stopped above its floor, so that a
+wrong diagnosis cannot take a healthy rotor away. The latest accepted message holds until the next: it
+has no stamp, the identifier republishes it several times a second, and a rotor found stopped does not
+start again because the identifier fell silent. Parameter ``fault_tolerant_allocation`` (default true,
+settable at run time): false feeds the filter no diagnosis, i.e. the nominal allocation, reached without
+a jump; the gains are the same either way. One INFO line when reallocation starts (a rotor's
+effectiveness in use drops below ``1 - REALLOCATION_NOTICE``) and when it ends, naming the rotors and
+the effectiveness in use; one WARN per reallocation when the allocator gives up yaw authority (keeps
+less than ``YAW_GIVEN_UP_FRACTION`` of the wanted yaw torque).
 
 Hostile input (issue 11): nothing refused reaches the law, so its integrals never see it. Every refusal
 is counted per reason, logged once per reason, then summarised (refusals.py).
@@ -27,6 +44,8 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
   refused alone and never kept, so the next valid odometry is accepted. A zero stamp is refused as
   unstamped once this node's clock reads more than that tolerance; before (simulated time just
   started) it is a real stamp: the simulator's first odometry is stamped 0.
+- rotor_effectiveness: the layout above with N rotors, finite, estimates in [0, 1.5], std >= 0. A
+  refused message leaves the previous diagnosis in force.
 - setpoint: finite, a unit (or all-zero) quaternion, a position within ``StateLimits.position_m`` (the
   MAVLink path's 10 km); the frame, if given, that of the odometry. A refused setpoint leaves the
   previous one in force. Setpoints are commands, taken when they arrive: their stamp is not used.
@@ -47,11 +66,14 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 
+from multirotor_ros.control.fault_tolerance import EffectivenessFilter
 from multirotor_ros.control.gains import GAIN_UNITS, airframe_gains
 from multirotor_ros.control.law import SaturationController
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
+from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
@@ -65,6 +87,11 @@ from multirotor_ros.refusals import Refusal, RefusalCounter
 
 # (p_WB_W, v_WB_W, q_WB, w_WB_B): position and velocity in world ENU, attitude, body rates in FLU.
 State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
+# Reallocation is said to start when a rotor's effectiveness in use drops this far below 1 [-].
+REALLOCATION_NOTICE = 0.05
+# Yaw authority counts as given up below this share of the wanted yaw torque (a brief saturation of a
+# few percent in a transient is no news).
+YAW_GIVEN_UP_FRACTION = 0.9
 
 
 def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
@@ -74,6 +101,14 @@ def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
         for name, value in gains.items()
         for unit, meaning in [GAIN_UNITS[name]]
     ]
+    specs.append(
+        NodeParameter(
+            "fault_tolerant_allocation",
+            True,
+            "allocate with the rotor effectiveness the identifier diagnoses (rotor_effectiveness); "
+            "false = the nominal allocation",
+        )
+    )
     specs.append(
         NodeParameter(
             "odom_timeout_s",
@@ -170,10 +205,17 @@ class ControllerNode(Node):
         self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
         self._setpoint_refusals = RefusalCounter(self.get_logger().warning, "setpoint")
         self._output_refusals = RefusalCounter(self.get_logger().error, "own motor_speed_cmd")
+        self._effectiveness_refusals = RefusalCounter(self.get_logger().warning, "rotor_effectiveness")
+        self._fault_tolerant = bool(values["fault_tolerant_allocation"])
+        self._effectiveness_filter = EffectivenessFilter(self.airframe.n_rotors)
+        self._diagnosis: tuple[FloatArray, FloatArray] | None = None  # latest accepted (estimate, std)
+        self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
+        self._yaw_warned = False
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         self.create_subscription(Odometry, "odom", self._on_odom, 10)
         self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, 10)
+        self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.create_timer(1.0 / self.law.gains.rate_hz, self._on_timer)
@@ -207,6 +249,41 @@ class ControllerNode(Node):
             return
         self._target = target
 
+    def _on_effectiveness(self, message: Float64MultiArray) -> None:
+        diagnosis = effectiveness_from_message(message, self.airframe.n_rotors)
+        if isinstance(diagnosis, Refusal):
+            self._effectiveness_refusals.refuse(diagnosis.reason, diagnosis.detail)
+            return
+        self._diagnosis = diagnosis
+
+    def _effectiveness(self, t_s: float) -> FloatArray:
+        """The effectiveness the allocator uses now (module docstring); logs when reallocation starts/ends."""
+        diagnosis = self._diagnosis if self._fault_tolerant and self._diagnosis is not None else (None, None)
+        effectiveness = self._effectiveness_filter.update(t_s, *diagnosis)
+        reallocated = [int(k) for k in np.flatnonzero(effectiveness < 1.0 - REALLOCATION_NOTICE)]
+        if reallocated != self._reallocated:
+            self._reallocated = reallocated
+            self._yaw_warned = False
+            self.get_logger().info(self._reallocation_line(effectiveness))
+        return effectiveness
+
+    def _reallocation_line(self, effectiveness: FloatArray) -> str:
+        if not self._reallocated:
+            return "fault-tolerant allocation ends: every rotor back in the allocation, nominal allocation"
+        diagnosed = ""
+        if self._diagnosis is not None:
+            estimate, std = self._diagnosis
+            diagnosed = ", diagnosed " + ", ".join(
+                f"{estimate[k]:.2f} ± {std[k]:.2f}" for k in self._reallocated
+            )
+        return (
+            "fault-tolerant allocation: reallocating around "
+            + ", ".join(f"rotor {k + 1}" for k in self._reallocated)
+            + " (effectiveness in use "
+            + ", ".join(f"{effectiveness[k]:.2f}" for k in self._reallocated)
+            + f"{diagnosed}; moving with a time constant of {self._effectiveness_filter.time_constant_s:g} s)"
+        )
+
     def _on_timer(self) -> None:
         if self._state is None or self._target is None:
             return
@@ -218,7 +295,17 @@ class ControllerNode(Node):
             return
         self._stale = False
         p, v, q, w = self._state
-        speeds = self.law.update(now.nanoseconds * 1e-9, p, v, q, w, *self._target).omega_cmd_rad_s
+        t_s = now.nanoseconds * 1e-9
+        output = self.law.update(t_s, p, v, q, w, *self._target, effectiveness=self._effectiveness(t_s))
+        yaw_given_up = output.allocation.yaw_fraction < YAW_GIVEN_UP_FRACTION
+        if self._reallocated and yaw_given_up and not self._yaw_warned:
+            self._yaw_warned = True
+            self.get_logger().warning(
+                f"yaw authority given up: without {', '.join(f'rotor {k + 1}' for k in self._reallocated)} "
+                f"the allocation keeps {100 * output.allocation.yaw_fraction:.0f} % of the wanted yaw torque "
+                "(thrust, roll and pitch first); the heading may drift"
+            )
+        speeds = output.omega_cmd_rad_s
         if not (np.all(np.isfinite(speeds)) and np.all(speeds >= 0.0)):
             self._output_refusals.refuse(
                 "non-finite or negative rotor speed",
@@ -234,6 +321,12 @@ class ControllerNode(Node):
         if changes:
             self.law.set_gains(self.law.gains.replace(**changes))
         for parameter in parameters:
+            if parameter.name == "fault_tolerant_allocation":
+                self._fault_tolerant = bool(parameter.value)
+                self.get_logger().info(
+                    "fault-tolerant allocation "
+                    + ("on: allocating with rotor_effectiveness" if self._fault_tolerant else "off: nominal")
+                )
             if parameter.name == "odom_timeout_s":
                 self._odom_timeout_ns = round(float(parameter.value) * 1e9)
                 self._odometry_check.forget_after_ns = self._odom_timeout_ns

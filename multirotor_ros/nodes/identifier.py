@@ -6,6 +6,8 @@ Wiring::
     odom (Odometry) ------------> validate --+--> FlightMonitor --------> residuals (Vector3Stamped)
       or pose (PoseStamped) + imu (Imu) -----+    (diagnosis/monitor.py)   identified_parameters,
                                                                            diagnostics (DiagnosticArray)
+                                                                           rotor_effectiveness
+                                                                             (Float64MultiArray)
     FlightMonitor: RLS + window refit, observer, detector, record under record_path
 
 ``input``: ``odom`` (state from odometry: pose ENU, twist in body FLU; the acceleration the identifier
@@ -13,8 +15,20 @@ needs is the central difference of the velocity) or ``pose_imu`` (position and a
 body rates and specific force from the IMU, velocity from position differences, low-passed:
 ident/pose_imu.py).
 ``residuals`` is published with every processed sample (``sample_rate_hz`` on average);
-``identified_parameters`` and ``diagnostics`` every 1/``publish_rate_hz`` of wall time, and the record
-is flushed every second. Stamps come from the messages, so the node follows simulated time as it is.
+``identified_parameters``, ``diagnostics`` and ``rotor_effectiveness`` every 1/``publish_rate_hz`` of
+wall time, and the record is flushed every second. Stamps come from the messages, so the node follows
+simulated time as it is.
+
+``rotor_effectiveness`` (std_msgs/Float64MultiArray, reliable; layout in nodes/effectiveness_message.py)
+is what a controller reallocates from: row 0 each rotor's estimated remaining effectiveness, row 1 its
+standard deviation. Before the detector has learnt the residual noise (the observer converging, or
+settling after a gap) every rotor is 1 with std 1.0: nothing known. Then healthy rotors are 1 and the
+rotor in alarm has its estimate, each with the standard deviation of one sample's loss estimate (about
+0.01-0.03 on the X8); a coaxial pair the detector cannot tell apart both get at least the estimated loss
+as std (FlightMonitor.effectiveness). Besides the periodic publish it is published at once, from the
+sample that changed it, when any rotor's estimate moves by more than ``EFFECTIVENESS_STEP`` or its std
+by more than ``EFFECTIVENESS_STD_STEP``: an alarm, its refinement and its clearing reach the controller
+without waiting for the timer.
 
 Bad input never stops the node nor moves an estimate. A message that fails validation is refused,
 counted, and logged once per reason with throttled summaries after: wrong rotor count or names,
@@ -36,12 +50,14 @@ from collections.abc import Callable
 from dataclasses import fields
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64MultiArray
 
 from multirotor_ros.diagnosis.detection import DetectionSettings
 from multirotor_ros.diagnosis.monitor import FlightMonitor, MonitorSettings, Refused, StepResult
@@ -51,7 +67,9 @@ from multirotor_ros.ident.pose_imu import PoseImuFusion, StateSample, Unpaired
 from multirotor_ros.ident.rls import OnlineSettings
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.effects import EFFECTS, parse_effect_list
+from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.nodes.clock import steady_clock
+from multirotor_ros.nodes.effectiveness_message import rotor_effectiveness_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     imu_from_message,
@@ -70,6 +88,10 @@ from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 # and a dropped state or rotor-speed message is a gap in the data.
 QUEUE_DEPTH = 100
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
+# rotor_effectiveness is published at once when an estimate moves more than this, or its std more than
+# the second (module docstring); a healthy rotor's std wanders by about 0.01 from sample to sample.
+EFFECTIVENESS_STEP = 0.02
+EFFECTIVENESS_STD_STEP = 0.05
 
 _DETECTION_HELP = {
     "k_sigma": ("alarm when a rotor's loss estimate exceeds this many of its standard deviations", "-"),
@@ -254,10 +276,12 @@ class IdentifierNode(Node):
             for topic in ("motor_speeds", "odom", "pose", "imu")
         }
         self._last_stamp_ns = 0
+        self._published_effectiveness: tuple[FloatArray, FloatArray] | None = None
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
         self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._effectiveness_pub = self.create_publisher(Float64MultiArray, "rotor_effectiveness", 10)
         self.create_subscription(
             JointState, "motor_speeds", self._guarded(self._on_motor_speeds), QUEUE_DEPTH
         )
@@ -430,6 +454,19 @@ class IdentifierNode(Node):
         if detection is not None and detection.alarm[0] and detection.onset_t[0] == result.t:
             report = self.monitor.reports()[int(detection.rotor[0])]
             self.get_logger().error(f"rotor fault: {report.message}")
+        if detection is not None:
+            self._publish_effectiveness(only_if_changed=True)
+
+    def _publish_effectiveness(self, only_if_changed: bool = False) -> None:
+        estimate, std = self.monitor.effectiveness()
+        if only_if_changed and self._published_effectiveness is not None:
+            published_estimate, published_std = self._published_effectiveness
+            if np.all(np.abs(estimate - published_estimate) <= EFFECTIVENESS_STEP) and np.all(
+                np.abs(std - published_std) <= EFFECTIVENESS_STD_STEP
+            ):
+                return
+        self._effectiveness_pub.publish(rotor_effectiveness_message(estimate, std))
+        self._published_effectiveness = (estimate, std)
 
     def _publish_status(self) -> None:
         stamp = stamp_from_ns(self._last_stamp_ns)
@@ -447,6 +484,7 @@ class IdentifierNode(Node):
                 )
             )
         self._diagnostics_pub.publish(diagnostics)
+        self._publish_effectiveness()
 
     def _parameters_message(self, stamp: Any) -> DiagnosticArray:
         message = DiagnosticArray()

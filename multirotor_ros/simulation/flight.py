@@ -16,6 +16,15 @@ the motion-capture attitude, gravity removed; ``p, q, r`` the IMU's gyroscope (n
 the SRF08 reading where one fell due (empty otherwise and when there was no echo). With ``noise=False``
 every sensor reads the truth. Metadata: ``airframe``, ``source``, ``effects`` (the true effect list),
 ``motor_lag_s``, ``physics_rate_hz``, ``controller_rate_hz``, ``noise``.
+
+Fault-tolerant flight (``fault_tolerance``, issue 15): the rotor diagnosis runs in the loop on what the
+identifier node would receive, as in the fault campaign (diagnosis/campaign.py): attitude and position
+from motion capture, body rates from the gyroscope, rotor speeds from the ESCs, the true velocity plus
+white noise (a state estimator), one sample per log row. Its verdict, as the ``rotor_effectiveness``
+topic carries it (:meth:`RotorDiagnoser.effectiveness`), goes through the controller's
+:class:`EffectivenessFilter` to the allocation, as in the controller node. A :class:`ControlTrace`
+records, per control step, the position error and the effectiveness the allocation used, and the
+first detection.
 """
 
 from __future__ import annotations
@@ -24,19 +33,25 @@ import csv
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from multirotor_ros.control.fault_tolerance import EffectivenessFilter
 from multirotor_ros.control.gains import ControllerGains, airframe_gains
 from multirotor_ros.control.law import SaturationController
+from multirotor_ros.diagnosis.detection import DetectionSettings
+from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser
+from multirotor_ros.diagnosis.residuals import ObserverSettings
 from multirotor_ros.io.flight_log import FlightLog, rotor_columns
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.effects import Effect
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler, quat_to_matrix
+from multirotor_ros.model.state import StateBatch
 from multirotor_ros.simulation.sensors import airframe_sensor_config
 from multirotor_ros.simulation.vehicle import NS_PER_S, VehicleSimulator, period_ns
 
@@ -116,6 +131,138 @@ class SetpointSchedule:
         return row[:3], float(row[3])
 
 
+@dataclass(frozen=True)
+class ReportedFault:
+    """A verdict handed to the controller instead of the diagnoser's from ``from_s`` on (e.g. a wrong one).
+
+    As the topic would carry it: rotor ``motor`` (1..N) at ``effectiveness``, the others at 1, all with
+    standard deviation ``std`` (a confident report).
+    """
+
+    motor: int
+    effectiveness: float  # [-] remaining share of the rotor's thrust
+    from_s: float  # [s]
+    std: float = 0.01  # [-]
+
+
+@dataclass(frozen=True)
+class FaultTolerance:
+    """In-the-loop diagnosis for :func:`simulate_flight` (module docstring), and whether it reallocates.
+
+    ``reallocation=False`` diagnoses (the trace has the detection) but allocates as if every rotor were
+    healthy, which is the controller node with ``fault_tolerant_allocation`` off.
+    """
+
+    reallocation: bool = True
+    observer: ObserverSettings | None = None
+    detection: DetectionSettings | None = None
+    filter_time_constant_s: float = EffectivenessFilter.DEFAULT_TIME_CONSTANT_S  # [s]
+    filter_floor: float = EffectivenessFilter.DEFAULT_FLOOR  # [-]
+    velocity_noise_m_s: float = 0.02  # [m/s] white noise on the true velocity the diagnosis is given
+    seed: int = 0  # of the velocity noise (the simulator's own generator is left as without diagnosis)
+    reported: ReportedFault | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.velocity_noise_m_s) and self.velocity_noise_m_s >= 0):
+            raise ValueError(
+                f"velocity_noise_m_s must be a finite number >= 0, got {self.velocity_noise_m_s}"
+            )
+
+
+class ControlTrace:
+    """What :func:`simulate_flight` records per control step when given one, and the first detection."""
+
+    def __init__(self) -> None:
+        self._t: list[float] = []
+        self._error: list[FloatArray] = []
+        self._effectiveness: list[FloatArray] = []
+        self._yaw_fraction: list[float] = []
+        self.detection_t_s = math.nan  # [s] the diagnoser's first alarm (nan: none, or no diagnosis)
+        self.detected_motor = 0  # rotor (1..N) named at the first alarm, 0: none
+
+    def record(self, t_s: float, error_W: FloatArray, effectiveness: FloatArray, yaw_fraction: float) -> None:
+        """One control step: position error p - p_d [m] (world), effectiveness allocated with."""
+        self._t.append(t_s)
+        self._error.append(error_W)
+        self._effectiveness.append(effectiveness)
+        self._yaw_fraction.append(yaw_fraction)
+
+    @property
+    def t(self) -> FloatArray:
+        """(K,) control step times [s]."""
+        return np.array(self._t)
+
+    @property
+    def position_error_W(self) -> FloatArray:
+        """(K, 3) true position minus the setpoint [m], world ENU."""
+        return np.array(self._error).reshape(-1, 3)
+
+    @property
+    def effectiveness(self) -> FloatArray:
+        """(K, N) the effectiveness the allocation used (all 1 without reallocation)."""
+        return np.array(self._effectiveness)
+
+    @property
+    def yaw_fraction(self) -> FloatArray:
+        """(K,) share of the wanted yaw torque the allocation kept."""
+        return np.array(self._yaw_fraction)
+
+
+class _InLoopDiagnosis:
+    """The diagnoser on the simulator's readings, and the controller's effectiveness filter."""
+
+    def __init__(self, settings: FaultTolerance, model: Model, sample_period_s: float):
+        self.settings = settings
+        self.n_rotors = model.airframe.n_rotors
+        if settings.reported is not None and not 1 <= settings.reported.motor <= self.n_rotors:
+            raise ValueError(
+                f"reported fault: motor must be in 1..{self.n_rotors}, got {settings.reported.motor}"
+            )
+        self.diagnoser = RotorDiagnoser(model, 1, settings.observer, settings.detection)
+        self.filter = EffectivenessFilter(
+            self.n_rotors, settings.filter_time_constant_s, settings.filter_floor
+        )
+        self.rng = np.random.default_rng(settings.seed)
+        self.sample_period_s = sample_period_s
+        self._readings: dict[int, dict[str, Any]] = {}
+
+    def take(self, reading: Any, sim: VehicleSimulator, trace: ControlTrace | None) -> None:
+        """Collect one reading; diagnose once pose, gyro and rotor speeds of one time are in."""
+        if reading.kind not in ("imu", "pose", "motor_speeds"):
+            return
+        sample = self._readings.setdefault(reading.t_ns, {})
+        sample[reading.kind] = reading.data
+        if len(sample) < 3:
+            return
+        del self._readings[reading.t_ns]
+        p_WB_W, q_WB = sample["pose"]
+        velocity = sim.state[S.VELOCITY] + self.settings.velocity_noise_m_s * self.rng.standard_normal(3)
+        state = StateBatch(
+            t=np.array([reading.t_ns / NS_PER_S]),
+            p_WB_W=np.asarray(p_WB_W, dtype=float).reshape(1, 3),
+            v_WB_W=velocity.reshape(1, 3),
+            R_WB=quat_to_matrix(np.asarray(q_WB, dtype=float)).reshape(1, 3, 3),
+            w_WB_B=np.asarray(sample["imu"].w_WB_B, dtype=float).reshape(1, 3),
+            omega=np.asarray(sample["motor_speeds"], dtype=float).reshape(1, self.n_rotors),
+        )
+        output = self.diagnoser.update(state, self.sample_period_s).detection
+        if trace is not None and output is not None and output.alarm[0] and math.isnan(trace.detection_t_s):
+            trace.detection_t_s = float(output.t)
+            trace.detected_motor = int(output.rotor[0]) + 1
+
+    def effectiveness(self, t_s: float) -> FloatArray | None:
+        """What the allocation uses now (None: allocate as if healthy, reallocation being off)."""
+        reported = self.settings.reported
+        if reported is not None and t_s >= reported.from_s:
+            estimate = np.ones(self.n_rotors)
+            estimate[reported.motor - 1] = reported.effectiveness
+            std = np.full(self.n_rotors, reported.std)
+        else:
+            estimate, std = self.diagnoser.effectiveness()
+        used = self.filter.update(t_s, estimate, std)
+        return used if self.settings.reallocation else None
+
+
 def simulate_flight(
     airframe_or_model: Airframe | Model,
     effects: Iterable[Effect | Mapping[str, Any]] | None = None,
@@ -130,6 +277,8 @@ def simulate_flight(
     gains: ControllerGains | None = None,
     initial_position_m: Sequence[float] = (0.0, 0.0, 0.0),
     initial_yaw_rad: float = 0.0,
+    fault_tolerance: FaultTolerance | None = None,
+    trace: ControlTrace | None = None,
 ) -> FlightLog:
     """Fly the closed loop for ``duration_s`` and return its flight log (see the module docstring).
 
@@ -137,6 +286,8 @@ def simulate_flight(
     or a Model (its effects are the truth; ``effects`` must then be None). The controller knows only the
     airframe (its YAML's controller gains, or ``gains``) and flies on the true state at its rate_hz.
     ``motor_lag``: rotors follow commands with the airframe's motor time constant (VehicleSimulator).
+    ``fault_tolerance``: diagnose in the loop and reallocate (module docstring); ``trace``: filled with
+    every control step.
     """
     if isinstance(airframe_or_model, Model):
         if effects is not None:
@@ -172,6 +323,12 @@ def simulate_flight(
     )
     controller = SaturationController(airframe, gains, sim.model.gravity_m_s2)
     recorder = _Recorder(airframe.n_rotors, sim.model.gravity_m_s2)
+    # The diagnosis models what the airframe's YAML says, not the hidden truth.
+    diagnosis = (
+        None
+        if fault_tolerance is None
+        else _InLoopDiagnosis(fault_tolerance, Model(airframe), 1.0 / log_rate_hz)
+    )
     end_ns = round(duration_s * NS_PER_S)
     control_ns = period_ns(gains.rate_hz)
     next_control = 0
@@ -179,13 +336,30 @@ def simulate_flight(
         if sim.t_ns >= next_control:
             x = sim.state
             p_d, yaw_d = schedule.at(sim.t_s)
+            effectiveness = None if diagnosis is None else diagnosis.effectiveness(sim.t_s)
             output = controller.update(
-                sim.t_s, x[S.POSITION], x[S.VELOCITY], x[S.QUATERNION], x[S.BODY_RATE], p_d, yaw_d
+                sim.t_s,
+                x[S.POSITION],
+                x[S.VELOCITY],
+                x[S.QUATERNION],
+                x[S.BODY_RATE],
+                p_d,
+                yaw_d,
+                effectiveness=effectiveness,
             )
             sim.set_command(output.omega_cmd_rad_s)
+            if trace is not None:
+                trace.record(
+                    sim.t_s,
+                    x[S.POSITION] - p_d,
+                    np.ones(airframe.n_rotors) if effectiveness is None else effectiveness,
+                    output.allocation.yaw_fraction,
+                )
             next_control += control_ns
         for reading in sim.run_until(min(next_control, end_ns)):
             recorder.take(reading, sim)
+            if diagnosis is not None:
+                diagnosis.take(reading, sim, trace)
     metadata = {
         "airframe": airframe.name,
         "source": "simulator (multirotor_ros.simulation.simulate_flight)",

@@ -1,0 +1,112 @@
+"""From the identifier's rotor diagnosis to the effectiveness the allocator uses; pure numpy, no ROS.
+
+The identifier publishes, per rotor, an effectiveness estimate (share of the nominal thrust left, 1 =
+healthy) and its standard deviation (1.0 when nothing is known). :class:`EffectivenessFilter` turns
+that stream into the vector given to ``Allocator.allocate(..., effectiveness)``:
+
+- only confident estimates count (std <= CONFIDENT_STD); an unconfident estimate, or none at all, counts
+  as "healthy" (so a diagnosis that clears, or an identifier that falls silent, restores the nominal
+  allocation);
+- the output moves towards its target with first-order dynamics (time constant ``time_constant_s``), so
+  a diagnosis that appears or clears changes the commands smoothly, never in one step;
+- a rotor is "stopped" when its estimate is below DEAD_ROTOR_EFFECTIVENESS with a confident std: only
+  then may the output go below ``floor``, down to 0 (the allocator leaves it out below
+  DEAD_ROTOR_EFFECTIVENESS). Any other rotor is never taken as weaker than ``floor``: a healthy rotor
+  wrongly reported at 15 % is allocated as if at ``floor``, which the feedback law absorbs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from multirotor_ros.control.allocation import DEAD_ROTOR_EFFECTIVENESS, MAX_EFFECTIVENESS
+from multirotor_ros.model.rotation import FloatArray
+
+# Largest std [1, effectiveness] of an estimate the filter acts on: +-0.2 (2 sigma) separates a rotor
+# at half its thrust from a healthy one and a stopped rotor (< 0.1) from one at the floor, and
+# is well above the std of a converged diagnosis (a few 0.01), well below the "nothing known" 1.0.
+CONFIDENT_STD = 0.1
+
+
+class EffectivenessFilter:
+    """Confident estimates -> a smooth effectiveness vector per rotor (module docstring).
+
+    ``update(t_s, estimate, std)`` with the identifier's (N,) estimate and std (either None: nothing
+    known) returns the (N,) effectiveness for the allocator, starting from all 1 (healthy).
+    """
+
+    # Time constant [s] of the approach to a new target. Several times the motor time constant (0.03 s
+    # on the shipped airframes) so that the commands change no faster than the rotors can follow, and
+    # short beside the 3 s the vehicle has to recover after a detection: 3 time constants = 95 % in 0.6 s.
+    DEFAULT_TIME_CONSTANT_S: ClassVar[float] = 0.2
+    # Smallest effectiveness assumed for a rotor not diagnosed as stopped: a weak, noisy estimate cannot
+    # take a rotor out of the allocation (the others would carry its share, a hexarotor would lose yaw).
+    # 0.3 is the deepest partial loss issue 15 asks to compensate in full. The floor is no bound on the
+    # harm of a wrong diagnosis of a healthy rotor: the allocation gives rotor i a share of omega^2
+    # proportional to e_i (pseudo-inverse of B diag(e)), so the mismatch e_i (1 - e_i) is largest at
+    # e_i = 0.5, about 40 % of the wrench error of a stopped rotor left uncompensated, which the law
+    # holds (test_fault_tolerance.py flies a healthy rotor reported at 50 %).
+    DEFAULT_FLOOR: ClassVar[float] = 0.3
+
+    def __init__(
+        self,
+        n_rotors: int,
+        time_constant_s: float = DEFAULT_TIME_CONSTANT_S,
+        floor: float = DEFAULT_FLOOR,
+    ):
+        if n_rotors < 1:
+            raise ValueError(f"n_rotors must be >= 1, got {n_rotors}")
+        if not (math.isfinite(time_constant_s) and time_constant_s > 0):
+            raise ValueError(f"time_constant_s must be > 0, got {time_constant_s}")
+        if not DEAD_ROTOR_EFFECTIVENESS <= floor <= 1.0:
+            raise ValueError(f"floor must lie in [{DEAD_ROTOR_EFFECTIVENESS}, 1], got {floor}")
+        self.n_rotors = n_rotors
+        self.time_constant_s = time_constant_s
+        self.floor = floor
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to all rotors healthy, no time seen."""
+        self._effectiveness = np.ones(self.n_rotors)
+        self._last_t: float | None = None
+
+    @property
+    def effectiveness(self) -> FloatArray:
+        """The current output (a copy)."""
+        return self._effectiveness.copy()
+
+    def target(self, estimate: ArrayLike | None, std: ArrayLike | None) -> FloatArray:
+        """Where the output heads for this diagnosis: confident estimates, floored unless stopped."""
+        if estimate is None or std is None:
+            return np.ones(self.n_rotors)
+        e = self._vector(estimate, "estimate")
+        sigma = self._vector(std, "std")
+        if np.any(sigma < 0):
+            raise ValueError(f"std must be >= 0, got {sigma.tolist()}")
+        confident = sigma <= CONFIDENT_STD
+        stopped = confident & (e < DEAD_ROTOR_EFFECTIVENESS)
+        # An estimate of a stopped rotor may come out slightly negative, of a healthy one above 1.
+        wanted = np.clip(np.where(confident, e, 1.0), 0.0, MAX_EFFECTIVENESS)
+        return np.where(stopped, wanted, np.maximum(wanted, self.floor))
+
+    def update(self, t_s: float, estimate: ArrayLike | None, std: ArrayLike | None) -> FloatArray:
+        """The effectiveness for the allocator at time ``t_s`` [s], given the latest diagnosis."""
+        if not math.isfinite(t_s):
+            raise ValueError(f"t_s must be finite, got {t_s}")
+        target = self.target(estimate, std)
+        dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
+        self._last_t = t_s
+        self._effectiveness += (target - self._effectiveness) * -math.expm1(-dt / self.time_constant_s)
+        return self._effectiveness.copy()
+
+    def _vector(self, values: ArrayLike, name: str) -> FloatArray:
+        vector = np.asarray(values, dtype=float)
+        if vector.shape != (self.n_rotors,):
+            raise ValueError(f"{name} must have one value per rotor ({self.n_rotors}), got {vector.shape}")
+        if not np.all(np.isfinite(vector)):
+            raise ValueError(f"{name} must be finite, got {vector.tolist()}")
+        return vector
