@@ -27,10 +27,10 @@ from sensor_msgs.msg import JointState
 from test_nodes_sim_control import (
     STARTUP_TIMEOUT_S,
     Vehicle,
+    lockstep_vehicle,
+    module_probe,
     setpoint_message,
     stamp_s,
-    start_vehicle,
-    stop_vehicles,
 )
 
 from multirotor_ros.cli.fuzz import default_valid_message, flood, has_non_finite, hostile_messages
@@ -132,25 +132,12 @@ FLOOD_COUNT = 3000
 FLOOD_RATE_HZ = 1000.0
 
 
-@pytest.fixture(scope="module")
-def probe() -> Iterator[RosProbe]:
-    probe = RosProbe()
-    yield probe
-    probe.close()
+probe = pytest.fixture(scope="module", name="probe")(module_probe)
 
 
 @pytest.fixture(scope="module")
-def vehicle(probe: RosProbe, tmp_path_factory) -> Iterator[Vehicle]:
-    vehicle = start_vehicle(
-        probe,
-        tmp_path_factory.mktemp("hostile_controller"),
-        "/hc",
-        simulator={"real_time_factor": 0.0, "command_timeout_s": 1.0, "seed": 7},
-        controller={},
-        sim_time=True,
-    )
-    yield vehicle
-    stop_vehicles(vehicle)
+def vehicle(probe: RosProbe, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Vehicle]:
+    yield from lockstep_vehicle(probe, tmp_path_factory.mktemp("hostile_controller"), "/hc", seed=7)
 
 
 @pytest.fixture(scope="module")

@@ -23,9 +23,9 @@ from test_nodes_sim_control import (
     STARTUP_TIMEOUT_S,
     Vehicle,
     joint_state,
+    lockstep_vehicle,
+    module_probe,
     stamp_s,
-    start_vehicle,
-    stop_vehicles,
 )
 
 from multirotor_ros.cli.fuzz import flood, has_non_finite, hostile_messages
@@ -37,25 +37,12 @@ FLOOD_COUNT = 3000
 FLOOD_RATE_HZ = 1000.0
 
 
-@pytest.fixture(scope="module")
-def probe() -> Iterator[RosProbe]:
-    probe = RosProbe()
-    yield probe
-    probe.close()
+probe = pytest.fixture(scope="module", name="probe")(module_probe)
 
 
 @pytest.fixture(scope="module")
-def vehicle(probe: RosProbe, tmp_path_factory) -> Iterator[Vehicle]:
-    vehicle = start_vehicle(
-        probe,
-        tmp_path_factory.mktemp("hostile_simulator"),
-        "/hs",
-        simulator={"real_time_factor": 0.0, "command_timeout_s": 1.0, "seed": 8},
-        controller={},
-        sim_time=True,
-    )
-    yield vehicle
-    stop_vehicles(vehicle)
+def vehicle(probe: RosProbe, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Vehicle]:
+    yield from lockstep_vehicle(probe, tmp_path_factory.mktemp("hostile_simulator"), "/hs", seed=8)
 
 
 @pytest.mark.ros

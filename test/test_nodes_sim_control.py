@@ -173,26 +173,33 @@ def stop_vehicles(*vehicles: Vehicle) -> None:
     assert not failures, "\n\n".join(failures)
 
 
-@pytest.fixture(scope="module")
-def probe() -> Iterator[RosProbe]:
+def module_probe() -> Iterator[RosProbe]:
+    """A probe shared by a module's tests (as a module-scoped fixture)."""
     probe = RosProbe()
     yield probe
     probe.close()
 
 
-@pytest.fixture(scope="module")
-def vehicle(probe: RosProbe, tmp_path_factory) -> Iterator[Vehicle]:
+def lockstep_vehicle(probe: RosProbe, directory: Path, namespace: str, seed: int) -> Iterator[Vehicle]:
     """An X8 at real_time_factor 0, lockstep: the simulator publishes the clock, the controller follows it."""
     vehicle = start_vehicle(
         probe,
-        tmp_path_factory.mktemp("closed_loop"),
-        "/t1",
-        simulator={"real_time_factor": 0.0, "command_timeout_s": 1.0, "seed": 3},
+        directory,
+        namespace,
+        simulator={"real_time_factor": 0.0, "command_timeout_s": 1.0, "seed": seed},
         controller={},
         sim_time=True,
     )
     yield vehicle
     stop_vehicles(vehicle)
+
+
+probe = pytest.fixture(scope="module", name="probe")(module_probe)
+
+
+@pytest.fixture(scope="module")
+def vehicle(probe: RosProbe, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Vehicle]:
+    yield from lockstep_vehicle(probe, tmp_path_factory.mktemp("closed_loop"), "/t1", seed=3)
 
 
 @pytest.mark.ros
