@@ -21,7 +21,11 @@ from multirotor_ros.control.allocation import (
     MAX_EFFECTIVENESS,
     Allocator,
 )
-from multirotor_ros.control.fault_tolerance import CONFIDENT_STD, EffectivenessFilter
+from multirotor_ros.control.fault_tolerance import (
+    CONFIDENT_STD,
+    RECOVERED_EFFECTIVENESS,
+    EffectivenessFilter,
+)
 from multirotor_ros.control.gains import airframe_gains
 from multirotor_ros.control.law import SaturationController
 from multirotor_ros.model import state as S
@@ -271,15 +275,38 @@ def test_a_diagnosis_that_appears_and_clears_changes_the_commands_without_a_jump
     np.testing.assert_allclose(commands[-1], commands[0], rtol=1e-2)
 
 
-def test_unconfident_or_missing_estimates_count_as_healthy() -> None:
+def test_unconfident_or_missing_estimates_hold_and_a_confident_healthy_one_restores() -> None:
     effectiveness_filter = EffectivenessFilter(8)
-    estimate = _without(8, 3)
+    estimate = np.ones(8)
+    estimate[2] = 0.5
+    held = _run(effectiveness_filter, [(estimate, CONFIDENT)] * 500)[-1]
+    assert held[2] == pytest.approx(0.5, abs=1e-3)
     std = np.full(8, 0.01)
     std[2] = 2.0 * CONFIDENT_STD
+    unconfident_healthy = (np.ones(8), std)
+    outputs = _run(effectiveness_filter, [unconfident_healthy] * 100 + [(None, None)] * 100, start_s=2.0)
+    np.testing.assert_allclose(outputs, np.tile(held, (200, 1)), atol=1e-3)
+    restored = _run(effectiveness_filter, [(np.ones(8), CONFIDENT)] * 500, start_s=3.0)[-1]
+    np.testing.assert_allclose(restored, 1.0, atol=1e-3)
+
+
+def test_a_stopped_verdict_latches_until_a_confident_recovery() -> None:
+    effectiveness_filter = EffectivenessFilter(8)
+    stopped = (_without(8, 3), CONFIDENT)
+    # Once idle, the stopped rotor's estimate drifts above the threshold, unconfident or not.
+    drifting = np.ones(8)
+    drifting[2] = 0.27
+    below_recovery = np.ones(8)
+    below_recovery[2] = RECOVERED_EFFECTIVENESS - 0.05
     outputs = _run(
-        effectiveness_filter, [(estimate, std)] * 100 + [(None, None)] * 100 + [(estimate, UNKNOWN)]
+        effectiveness_filter,
+        [stopped] * 250 + [(drifting, UNKNOWN)] * 250 + [(below_recovery, CONFIDENT)] * 250,
     )
-    np.testing.assert_array_equal(outputs, 1.0)
+    assert np.all(outputs[250:, 2] < DEAD_ROTOR_EFFECTIVENESS)
+    assert effectiveness_filter.stopped.tolist() == [k == 2 for k in range(8)]
+    recovered = _run(effectiveness_filter, [(np.ones(8), CONFIDENT)] * 500, start_s=4.0)[-1]
+    np.testing.assert_allclose(recovered, 1.0, atol=1e-3)
+    assert not effectiveness_filter.stopped.any()
 
 
 @settings(max_examples=100, deadline=None)
@@ -310,7 +337,8 @@ def test_a_stopped_rotor_leaves_the_allocation_after_a_few_time_constants() -> N
     effectiveness_filter = EffectivenessFilter(8, time_constant_s=0.2)
     outputs = _run(effectiveness_filter, [(np.array([1, 1, 0.01, 1, 1, 1, 1, 1.0]), CONFIDENT)] * 250)
     left_out = np.flatnonzero(outputs[:, 2] < DEAD_ROTOR_EFFECTIVENESS)[0] / RATE_HZ
-    assert left_out == pytest.approx(0.2 * math.log(0.99 / (DEAD_ROTOR_EFFECTIVENESS - 0.01)), abs=0.01)
+    # A stopped verdict heads for 0, not for the estimate.
+    assert left_out == pytest.approx(0.2 * math.log(1.0 / DEAD_ROTOR_EFFECTIVENESS), abs=0.01)
     assert allocator.allocate(hover, (0, 0, 0), outputs[-1]).omega_rad_s[2] == 0.0
 
 

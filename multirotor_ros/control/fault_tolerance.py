@@ -4,13 +4,18 @@ The identifier publishes, per rotor, an effectiveness estimate (share of the nom
 healthy) and its standard deviation (1.0 when nothing is known). :class:`EffectivenessFilter` turns
 that stream into the vector given to ``Allocator.allocate(..., effectiveness)``:
 
-- only confident estimates count (std <= CONFIDENT_STD); an unconfident estimate, or none at all, counts
-  as "healthy" (so a diagnosis that clears, or an identifier that falls silent, restores the nominal
-  allocation);
+- only confident estimates (std <= CONFIDENT_STD) move the output; an unconfident estimate, or none at
+  all, holds the current target. A rotor commanded to its minimum speed gives the identifier almost no
+  information, so its estimate loses confidence exactly when it is left out: taking that as "healthy"
+  would bring a stopped rotor back. A confident healthy estimate (the identifier publishes 1 with a
+  small std once converged on a healthy rotor) restores the nominal allocation;
+- a rotor is "stopped" once a confident estimate puts it below DEAD_ROTOR_EFFECTIVENESS: the verdict
+  latches (target 0, the rotor out of the allocation) until a confident estimate of at least
+  RECOVERED_EFFECTIVENESS arrives, so a noisy estimate of the idle rotor drifting above the threshold
+  does not put it back;
 - the output moves towards its target with first-order dynamics (time constant ``time_constant_s``), so
   a diagnosis that appears or clears changes the commands smoothly, never in one step;
-- a rotor is "stopped" when its estimate is below DEAD_ROTOR_EFFECTIVENESS with a confident std: only
-  then may the output go below ``floor``, down to 0 (the allocator leaves it out below
+- only a stopped rotor may go below ``floor``, down to 0 (the allocator leaves it out below
   DEAD_ROTOR_EFFECTIVENESS). Any other rotor is never taken as weaker than ``floor``: a healthy rotor
   wrongly reported at 15 % is allocated as if at ``floor``, which the feedback law absorbs.
 """
@@ -24,12 +29,17 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from multirotor_ros.control.allocation import DEAD_ROTOR_EFFECTIVENESS, MAX_EFFECTIVENESS
-from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray
 
 # Largest std [1, effectiveness] of an estimate the filter acts on: +-0.2 (2 sigma) separates a rotor
 # at half its thrust from a healthy one and a stopped rotor (< 0.1) from one at the floor, and
 # is well above the std of a converged diagnosis (a few 0.01), well below the "nothing known" 1.0.
 CONFIDENT_STD = 0.1
+# Smallest confident estimate that takes a rotor latched as stopped back into the allocation. Half the
+# nominal thrust: well above what the identifier estimates for a stopped rotor idling at its minimum
+# speed (up to about 0.3 in the X8 campaign, bench/bench_fault_tolerance.py), and a rotor that gives at
+# least half its thrust is worth allocating.
+RECOVERED_EFFECTIVENESS = 0.5
 
 
 class EffectivenessFilter:
@@ -70,8 +80,10 @@ class EffectivenessFilter:
         self.reset()
 
     def reset(self) -> None:
-        """Back to all rotors healthy, no time seen."""
+        """Back to all rotors healthy, no time seen, no rotor stopped."""
         self._effectiveness = np.ones(self.n_rotors)
+        self._target = np.ones(self.n_rotors)
+        self._stopped = np.zeros(self.n_rotors, dtype=bool)
         self._last_t: float | None = None
 
     @property
@@ -79,19 +91,29 @@ class EffectivenessFilter:
         """The current output (a copy)."""
         return self._effectiveness.copy()
 
+    @property
+    def stopped(self) -> BoolArray:
+        """(N,) rotors latched as stopped (a copy)."""
+        return self._stopped.copy()
+
     def target(self, estimate: ArrayLike | None, std: ArrayLike | None) -> FloatArray:
-        """Where the output heads for this diagnosis: confident estimates, floored unless stopped."""
+        """Where the output heads after this diagnosis (module docstring); updates the stopped latch."""
         if estimate is None or std is None:
-            return np.ones(self.n_rotors)
+            return self._target.copy()
         e = self._vector(estimate, "estimate")
         sigma = self._vector(std, "std")
         if np.any(sigma < 0):
             raise ValueError(f"std must be >= 0, got {sigma.tolist()}")
         confident = sigma <= CONFIDENT_STD
-        stopped = confident & (e < DEAD_ROTOR_EFFECTIVENESS)
-        # An estimate of a stopped rotor may come out slightly negative, of a healthy one above 1.
-        wanted = np.clip(np.where(confident, e, 1.0), 0.0, MAX_EFFECTIVENESS)
-        return np.where(stopped, wanted, np.maximum(wanted, self.floor))
+        self._stopped = np.where(
+            confident,
+            (e < DEAD_ROTOR_EFFECTIVENESS) | (self._stopped & (e < RECOVERED_EFFECTIVENESS)),
+            self._stopped,
+        )
+        # An estimate of a healthy rotor may come out above 1.
+        wanted = np.clip(e, self.floor, MAX_EFFECTIVENESS)
+        self._target = np.where(self._stopped, 0.0, np.where(confident, wanted, self._target))
+        return self._target.copy()
 
     def update(self, t_s: float, estimate: ArrayLike | None, std: ArrayLike | None) -> FloatArray:
         """The effectiveness for the allocator at time ``t_s`` [s], given the latest diagnosis."""

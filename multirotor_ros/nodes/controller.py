@@ -19,16 +19,18 @@ Fault-tolerant allocation (issue 15): the identifier's ``rotor_effectiveness`` (
 remaining effectiveness and its standard deviation; layout in nodes/effectiveness_message.py) goes
 through an ``EffectivenessFilter`` every period, whose output the allocator uses (B diag(e): a stopped
 rotor is left out, thrust, roll and pitch first, yaw given up where it must). The filter moves with
-first-order dynamics, so a diagnosis that appears or clears causes no jump in the commands; it takes
-unconfident estimates as healthy and keeps a rotor not diagnosed as stopped above its floor, so that a
-wrong diagnosis cannot take a healthy rotor away. The latest accepted message holds until the next: it
-has no stamp, the identifier republishes it several times a second, and a rotor found stopped does not
+first-order dynamics, so a diagnosis that appears or clears causes no jump in the commands; an
+unconfident estimate holds what it had, a rotor confidently found stopped stays out until a confident
+estimate shows it recovered, a confident healthy estimate restores the nominal allocation, and a rotor
+not diagnosed as stopped stays above the floor, so that a wrong diagnosis cannot take a healthy rotor
+away. The latest accepted message holds until the next, as the filter holds an unconfident one: it has
+no stamp, the identifier republishes it several times a second, and a rotor found stopped does not
 start again because the identifier fell silent. Parameter ``fault_tolerant_allocation`` (default true,
-settable at run time): false feeds the filter no diagnosis, i.e. the nominal allocation, reached without
-a jump; the gains are the same either way. One INFO line when reallocation starts (a rotor's
-effectiveness in use drops below ``1 - REALLOCATION_NOTICE``) and when it ends, naming the rotors and
-the effectiveness in use; one WARN per reallocation when the allocator gives up yaw authority (keeps
-less than ``YAW_GIVEN_UP_FRACTION`` of the wanted yaw torque).
+settable at run time): false feeds the filter a confident "all healthy" instead, i.e. the nominal
+allocation, reached without a jump; the gains are the same either way. One INFO line when reallocation
+starts (a rotor's effectiveness in use drops below ``1 - REALLOCATION_NOTICE``) and when it ends,
+naming the rotors and the effectiveness in use; one WARN per reallocation when the allocator gives up
+yaw authority (keeps less than ``YAW_GIVEN_UP_FRACTION`` of the wanted yaw torque).
 
 Hostile input (issue 11): nothing refused reaches the law, so its integrals never see it. Every refusal
 is counted per reason, logged once per reason, then summarised (refusals.py).
@@ -208,6 +210,8 @@ class ControllerNode(Node):
         self._effectiveness_refusals = RefusalCounter(self.get_logger().warning, "rotor_effectiveness")
         self._fault_tolerant = bool(values["fault_tolerant_allocation"])
         self._effectiveness_filter = EffectivenessFilter(self.airframe.n_rotors)
+        # A confident healthy diagnosis: what brings the filter back to the nominal allocation.
+        self._all_healthy = (np.ones(self.airframe.n_rotors), np.zeros(self.airframe.n_rotors))
         self._diagnosis: tuple[FloatArray, FloatArray] | None = None  # latest accepted (estimate, std)
         self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
         self._yaw_warned = False
@@ -258,7 +262,13 @@ class ControllerNode(Node):
 
     def _effectiveness(self, t_s: float) -> FloatArray:
         """The effectiveness the allocator uses now (module docstring); logs when reallocation starts/ends."""
-        diagnosis = self._diagnosis if self._fault_tolerant and self._diagnosis is not None else (None, None)
+        diagnosis: tuple[FloatArray | None, FloatArray | None]
+        if not self._fault_tolerant:
+            diagnosis = self._all_healthy
+        elif self._diagnosis is None:
+            diagnosis = (None, None)
+        else:
+            diagnosis = self._diagnosis
         effectiveness = self._effectiveness_filter.update(t_s, *diagnosis)
         reallocated = [int(k) for k in np.flatnonzero(effectiveness < 1.0 - REALLOCATION_NOTICE)]
         if reallocated != self._reallocated:
