@@ -144,6 +144,9 @@ class ManagedProcess:
             try:
                 self.process.wait(timeout)
             except subprocess.TimeoutExpired:
+                # Its stacks into the log first (nodes register faulthandler on SIGUSR1): where it is stuck.
+                self.process.send_signal(signal.SIGUSR1)
+                time.sleep(1.0)
                 self.process.kill()
                 self.process.wait()
                 raise AssertionError(

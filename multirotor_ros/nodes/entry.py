@@ -10,7 +10,13 @@ built (ValueError, ParameterException): one line on stderr, status 2.
 
 from __future__ import annotations
 
+import faulthandler
+import io
+import os
+import signal
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -50,24 +56,72 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
     airframe) is printed as one line and gives exit status 2: the node cannot run, and a traceback
     would hide the reason.
     """
-    with initialised_context(args) as context:
-        node: Node | None = None
-        try:
+    _stacks_on_sigusr1()
+    finished = threading.Event()
+    try:
+        with initialised_context(args) as context:
+            _watch_for_shutdown(context, finished)
+            node: Node | None = None
             try:
-                node = node_factory(context=context)
-            except (ValueError, ParameterException) as error:
-                print(f"{Path(sys.argv[0] if args is None else args[0]).name}: {error}", file=sys.stderr)
-                return 2
-            executor = SingleThreadedExecutor(context=context)
-            executor.add_node(node)
-            executor.spin()
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
-        except Exception:
-            # A signal can shut the context down while a callback is publishing; that is a normal end too.
-            if context.ok():
-                raise
-        finally:
-            if node is not None:
-                node.destroy_node()
+                try:
+                    node = node_factory(context=context)
+                except (ValueError, ParameterException) as error:
+                    print(f"{Path(sys.argv[0] if args is None else args[0]).name}: {error}", file=sys.stderr)
+                    return 2
+                executor = SingleThreadedExecutor(context=context)
+                executor.add_node(node)
+                executor.spin()
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass
+            except Exception:
+                # A signal can shut the context down while a callback is publishing; a normal end too.
+                if context.ok():
+                    raise
+            finally:
+                if node is not None:
+                    node.destroy_node()
+    finally:
+        finished.set()
     return 0
+
+
+def _stacks_on_sigusr1() -> None:
+    """SIGUSR1 prints every thread's stack to stderr: how to see where a node that does not stop is stuck."""
+    try:
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        pass  # stderr is not a file (a node built in-process under a test's capture): nothing to print to
+
+
+# How long a node may take to stop once shut down (Ctrl-C, SIGTERM, rclpy.shutdown) before it is ended.
+STOP_GRACE_S = 5.0
+SHUTDOWN_POLL_S = 0.2
+
+
+def _watch_for_shutdown(context: Context, finished: threading.Event) -> None:
+    """Once the context is shut down, end the process if it has not ended within ``STOP_GRACE_S``.
+
+    Seen a few times in full test runs: a node (the controller on simulated time) kept running 10 s after
+    SIGINT with nothing in its log, once its peers were gone; the middleware's teardown is the suspect. A
+    node asked to stop must stop: its stacks go to stderr (the evidence) and it exits with status 0.
+    rclpy's signal handler shuts the context down in C, without Python's shutdown callbacks: hence a
+    daemon thread that polls ``context.ok()``. ``finished`` is set once ``run_node`` has returned: then
+    nothing is forced (the process may be a test that goes on).
+    """
+
+    def watch() -> None:
+        while context.ok() and not finished.is_set():
+            time.sleep(SHUTDOWN_POLL_S)
+        if finished.wait(STOP_GRACE_S):
+            return
+        print(
+            f"{Path(sys.argv[0]).name}: still running {STOP_GRACE_S:g} s after shutdown was requested; "
+            "ending it (every thread's stack follows)",
+            file=sys.stderr,
+            flush=True,
+        )
+        faulthandler.dump_traceback(all_threads=True)
+        os._exit(0)
+
+    # A daemon thread: a process that ends normally does not wait for it.
+    threading.Thread(target=watch, name="shutdown-watch", daemon=True).start()
