@@ -523,8 +523,9 @@ def flood_mavlink_port(
     """
     from rclpy.qos import qos_profile_sensor_data
 
-    from multirotor_ros.cli.fuzz import NODE_OUTPUTS, TopicReport, _GroundStation, _OutputWatch, _ros_session
+    from multirotor_ros.cli.fuzz import NODE_OUTPUTS, TopicReport, _GroundStation, _OutputWatch
     from multirotor_ros.cli.fuzz import _message_types as message_types
+    from multirotor_ros.cli.ros_session import background_node
 
     frames = _frames(flight_stack, count, seed)
     types = message_types()
@@ -535,7 +536,7 @@ def flood_mavlink_port(
     station = _GroundStation(gcs_port, watch)
     report = TopicReport("mavlink_bridge", f"{'TCP' if flight_stack == 'px4' else 'UDP'} port {port}")
     try:
-        with _ros_session() as probe:
+        with background_node(f"multirotor_fuzz_{os.getpid()}") as probe:
             for topic in outputs:
                 name = f"{NAMESPACE}/{topic}"
                 probe.create_subscription(types[topic], name, watch.output, qos_profile_sensor_data)

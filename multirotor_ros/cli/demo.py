@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from multirotor_ros.cli import CommandError
+from multirotor_ros.cli.ros_session import background_node
 
 COMMAND = "demo"
 HELP = "fly the simulated X8 with the controller (and identifier) over ROS 2, inject a rotor fault, report"
@@ -199,11 +200,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: FlightRecord) -> None:
-    import rclpy
+    with background_node("demo", namespace=NAMESPACE) as node:
+        _fly_with(node, args, airframe, nodes, record)
+
+
+def _fly_with(
+    node: Any, args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: FlightRecord
+) -> None:
+    """The flight, seen and steered through ``node`` (spinning in the background)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from nav_msgs.msg import Odometry
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
 
@@ -212,12 +219,6 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
     from multirotor_ros.nodes.messages import stamp_to_s
     from multirotor_ros.refusals import Refusal
-
-    context = rclpy.Context()
-    rclpy.init(args=["multirotor_demo"], context=context)
-    node = rclpy.create_node("demo", namespace=NAMESPACE, context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
 
     in_use = EffectivenessFilter(airframe.n_rotors)  # as the controller's (module docstring)
     diagnosis: list[Any] = [None, None]  # (estimate, std) of the latest rotor_effectiveness
@@ -267,73 +268,56 @@ def _fly(args: argparse.Namespace, airframe: Any, nodes: NodeProcesses, record: 
     node.create_subscription(Float64MultiArray, "rotor_effectiveness", on_effectiveness, 10)
     setpoints = node.create_publisher(PoseStamped, "setpoint", 10)
 
-    def spin() -> None:
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-    try:
-        _wait(
-            lambda: record.t and setpoints.get_subscription_count() > 0,
-            STARTUP_TIMEOUT_S,
-            nodes,
-            "the simulator and controller did not come up",
-        )
-        live = sys.stdout.isatty()
-        sent_target = None
-        fault_sent = False
-        last_print = 0.0
-        last_progress = (time.monotonic(), record.t[-1])
-        while True:
-            nodes.check_alive()
-            with record.lock:
-                t, position = record.t[-1], record.position[-1]
-                speeds = record.speeds[-1] if record.speeds else []
-                effectiveness = record.effectiveness[-1]
-            if t >= FLIGHT_S:
-                break
-            if t > last_progress[1]:
-                last_progress = (time.monotonic(), t)
-            elif time.monotonic() - last_progress[0] > STALL_TIMEOUT_S:
-                raise CommandError(
-                    f"simulated time stopped at {t:.2f} s; see the logs in {nodes.log_directory}"
-                )
-            target = target_at(t)
-            if target != sent_target:
-                setpoints.publish(_pose(*target))
-                sent_target = target
-            if args.fault_motor and not fault_sent and t >= FAULT_TIME_S:
-                _set_parameter(node, f"{NAMESPACE}/simulator", "fault_motor", args.fault_motor)
-                fault_sent = True
-                print(
-                    ("\n" if live else "")
-                    + f"t = {t:5.2f} s: rotor {args.fault_motor} stopped (fault injected)"
-                )
-            now = time.monotonic()
-            if now - last_print >= (0.2 if live else 2.0):
-                last_print = now
-                error = math.dist(position, target[:3])
-                rotor_text = f"{min(speeds):4.0f}-{max(speeds):4.0f} rad/s" if speeds else "-"
-                line = (
-                    f"t = {t:5.2f} s  "
-                    f"position ({position[0]:5.2f}, {position[1]:5.2f}, {position[2]:5.2f}) m  "
-                    f"error {error:5.3f} m  rotors {rotor_text}  "
-                    f"{_effectiveness_text(effectiveness, args.no_reallocation)}"
-                )
-                print("\r" + line if live else line, end="" if live else "\n", flush=True)
-            time.sleep(0.02)
-        if live:
-            print()
-        # Give the identifier a moment of wall time to publish on what it saw last.
-        time.sleep(0.5)
-    finally:
-        executor.shutdown()
-        spinner.join(timeout=5.0)
-        node.destroy_node()
-        context.try_shutdown()
+    _wait(
+        lambda: record.t and setpoints.get_subscription_count() > 0,
+        STARTUP_TIMEOUT_S,
+        nodes,
+        "the simulator and controller did not come up",
+    )
+    live = sys.stdout.isatty()
+    sent_target = None
+    fault_sent = False
+    last_print = 0.0
+    last_progress = (time.monotonic(), record.t[-1])
+    while True:
+        nodes.check_alive()
+        with record.lock:
+            t, position = record.t[-1], record.position[-1]
+            speeds = record.speeds[-1] if record.speeds else []
+            effectiveness = record.effectiveness[-1]
+        if t >= FLIGHT_S:
+            break
+        if t > last_progress[1]:
+            last_progress = (time.monotonic(), t)
+        elif time.monotonic() - last_progress[0] > STALL_TIMEOUT_S:
+            raise CommandError(f"simulated time stopped at {t:.2f} s; see the logs in {nodes.log_directory}")
+        target = target_at(t)
+        if target != sent_target:
+            setpoints.publish(_pose(*target))
+            sent_target = target
+        if args.fault_motor and not fault_sent and t >= FAULT_TIME_S:
+            _set_parameter(node, f"{NAMESPACE}/simulator", "fault_motor", args.fault_motor)
+            fault_sent = True
+            print(
+                ("\n" if live else "") + f"t = {t:5.2f} s: rotor {args.fault_motor} stopped (fault injected)"
+            )
+        now = time.monotonic()
+        if now - last_print >= (0.2 if live else 2.0):
+            last_print = now
+            error = math.dist(position, target[:3])
+            rotor_text = f"{min(speeds):4.0f}-{max(speeds):4.0f} rad/s" if speeds else "-"
+            line = (
+                f"t = {t:5.2f} s  "
+                f"position ({position[0]:5.2f}, {position[1]:5.2f}, {position[2]:5.2f}) m  "
+                f"error {error:5.3f} m  rotors {rotor_text}  "
+                f"{_effectiveness_text(effectiveness, args.no_reallocation)}"
+            )
+            print("\r" + line if live else line, end="" if live else "\n", flush=True)
+        time.sleep(0.02)
+    if live:
+        print()
+    # Give the identifier a moment of wall time to publish on what it saw last.
+    time.sleep(0.5)
 
 
 def _effectiveness_text(effectiveness: Any, reallocation_off: bool) -> str:

@@ -37,8 +37,7 @@ import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from multirotor_ros.cli import CommandError
+from multirotor_ros.cli.ros_session import background_node
 from multirotor_ros.model.rotation import FloatArray
 
 COMMAND = "fuzz"
@@ -603,34 +603,6 @@ class _GroundStation:
         self._socket.close()
 
 
-@contextmanager
-def _ros_session() -> Iterator[Any]:
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
-    context = rclpy.Context()
-    rclpy.init(args=["multirotor_fuzz"], context=context)
-    node = rclpy.create_node(f"multirotor_fuzz_{os.getpid()}", context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-
-    def spin() -> None:
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-
-    thread = threading.Thread(target=spin, name="fuzz_spin", daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        executor.shutdown()
-        thread.join(timeout=10.0)
-        node.destroy_node()
-        context.try_shutdown()
-
-
 def _topic_name(namespace: str, topic: str) -> str:
     return f"{namespace.rstrip('/')}/{topic}" if namespace.strip("/") else f"/{topic}"
 
@@ -660,7 +632,7 @@ def fuzz_node(
     ground_station = _GroundStation(gcs_port, watch) if gcs_port else None
     reports: list[TopicReport] = []
     try:
-        with _ros_session() as probe:
+        with background_node(f"multirotor_fuzz_{os.getpid()}") as probe:
             rosout_qos = QoSProfile(
                 depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
             )

@@ -596,7 +596,7 @@ def _physics_fingerprint() -> str:
     return digest.hexdigest()
 
 
-_KERNELS: dict[tuple[tuple[str, ...], bool], ModuleType] = {}
+_KERNELS: dict[tuple[tuple[str, ...], bool], tuple[ModuleType, ParameterLayout]] = {}
 
 
 def kernel_for(model: Model) -> tuple[ModuleType, ParameterLayout]:
@@ -606,8 +606,8 @@ def kernel_for(model: Model) -> tuple[ModuleType, ParameterLayout]:
     )
     lag = model.rotor_time_constant_s is not None
     key = (tuple(cls.id for cls in classes), lag)
-    writer = _KernelWriter(classes, lag)
     if key not in _KERNELS:
+        writer = _KernelWriter(classes, lag)
         source = writer.source()
         digest = hashlib.sha256((source + _physics_fingerprint()).encode()).hexdigest()[:20]
         name = f"multirotor_ros_kernel_{digest}"
@@ -624,8 +624,8 @@ def kernel_for(model: Model) -> tuple[ModuleType, ParameterLayout]:
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)
-        _KERNELS[key] = module
-    return _KERNELS[key], writer.layout
+        _KERNELS[key] = (module, writer.layout)
+    return _KERNELS[key]
 
 
 class CompiledStepper:

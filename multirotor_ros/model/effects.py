@@ -303,7 +303,7 @@ class Effect:
         """Refuse parameters that do not fit the airframe (a rotor number it does not have, say)."""
         per_rotor = self.PER_ROTOR_PARAMETER
         if per_rotor is not None:
-            count = sum(1 for name in self.parameters if name.startswith(per_rotor.name + "_"))
+            count = self._per_rotor_count()
             if count != airframe.n_rotors:
                 raise ValueError(
                     f"effect {self.id!r}: {count} values of {per_rotor.name}_i, "
@@ -320,9 +320,15 @@ class Effect:
         per_rotor = self.PER_ROTOR_PARAMETER
         if per_rotor is None:
             return None
-        count = sum(1 for name in self.parameters if name.startswith(per_rotor.name + "_"))
-        columns = [self.parameters[f"{per_rotor.name}_{i}"] for i in range(1, count + 1)]
+        columns = [self.parameters[f"{per_rotor.name}_{i}"] for i in range(1, self._per_rotor_count() + 1)]
         return np.stack(np.broadcast_arrays(*columns), axis=-1)
+
+    def _per_rotor_count(self) -> int:
+        """How many values of the per-rotor parameter this effect holds (0 without one)."""
+        per_rotor = self.PER_ROTOR_PARAMETER
+        if per_rotor is None:
+            return 0
+        return sum(1 for name in self.parameters if name.startswith(per_rotor.name + "_"))
 
     def with_parameters(self, **changes: Any) -> Effect:
         """A copy with some parameters replaced."""
