@@ -3,14 +3,16 @@
     ros2 launch multirotor_ros sim.launch.py airframe:=x8_octorotor
 
 
-Arguments: ``airframe`` (config name or YAML path), ``real_time_factor`` (1 = wall time, 0 = as fast as
-possible, then the simulator publishes the clock and the controller follows it), ``namespace``.
-The identifier is started too when this install has it (``identifier:=false`` leaves it out).
+Arguments: ``airframe`` (config name or YAML path), ``real_time_factor`` (0, the default = lockstep: the
+simulator waits for each control period's command, so a flight does not depend on the machine's load;
+r > 0 = r x wall time), ``namespace``. Whatever the factor, the simulator publishes ``/clock`` and every
+node runs on it (``use_sim_time``), so stamps and timers follow one time. The identifier is started too
+(``identifier:=false`` leaves it out).
 """
 
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PythonExpression
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 
@@ -26,14 +28,13 @@ def generate_launch_description() -> LaunchDescription:
     namespace = LaunchConfiguration("namespace")
     # Typed explicitly: `real_time_factor:=1` would otherwise reach the node as an integer.
     rate = ParameterValue(real_time_factor, value_type=float)
-    sim_time = ParameterValue(PythonExpression(["float('", real_time_factor, "') == 0.0"]), value_type=bool)
     return LaunchDescription(
         [
             DeclareLaunchArgument(
                 "airframe", default_value="x8_octorotor", description="config name or YAML path"
             ),
             DeclareLaunchArgument(
-                "real_time_factor", default_value="1.0", description="0 = as fast as possible"
+                "real_time_factor", default_value="0.0", description="0 = lockstep, as fast as possible"
             ),
             DeclareLaunchArgument(
                 "namespace", default_value="", description="namespace of the vehicle's nodes"
@@ -47,9 +48,7 @@ def generate_launch_description() -> LaunchDescription:
                 name="simulator",
                 namespace=namespace,
                 output="screen",
-                parameters=[{"airframe": airframe, "real_time_factor": rate, "publish_clock": sim_time}],
-                # The clock of a namespaced simulator is the graph's clock.
-                remappings=[("clock", "/clock")],
+                parameters=[{"airframe": airframe, "real_time_factor": rate, "publish_clock": True}],
             ),
             Node(
                 package=PACKAGE,
@@ -57,7 +56,7 @@ def generate_launch_description() -> LaunchDescription:
                 name="controller",
                 namespace=namespace,
                 output="screen",
-                parameters=[{"airframe": airframe, "use_sim_time": sim_time}],
+                parameters=[{"airframe": airframe, "use_sim_time": True}],
             ),
             Node(
                 package=PACKAGE,
@@ -65,7 +64,7 @@ def generate_launch_description() -> LaunchDescription:
                 name="identifier",
                 namespace=namespace,
                 output="screen",
-                parameters=[{"airframe": airframe, "use_sim_time": sim_time}],
+                parameters=[{"airframe": airframe, "use_sim_time": True}],
                 condition=IfCondition(LaunchConfiguration("identifier")),
             ),
         ]

@@ -28,6 +28,10 @@ Fixtures
     messages received so far that satisfy ``predicate`` once there are ``count`` of them, or fails the
     test on timeout saying how many arrived and how many publishers were seen; ``clear()``.
 
+:class:`CpuHog`
+    Context manager: one busy-looping process per core (``processes`` to choose), each ending by itself
+    after ``max_seconds`` even if the test dies, all killed on exit: a machine as loaded as a user's.
+
 :class:`NodeProcess` (and its base :class:`ManagedProcess`, for any command)
     Context manager; ``stop(timeout=10.0, check=True) -> int`` sends SIGINT, waits, fails the test
     with the log's tail if the exit status is not 0 or the process does not end; ``log_text()``;
@@ -184,6 +188,29 @@ class NodeProcess(ManagedProcess):
         self.name = name
         argv = [sys.executable, "-m", "multirotor_ros.cli", "node", name]
         super().__init__(argv + ros_arguments(namespace, parameters, remaps, ros_args), log_path)
+
+
+class CpuHog:
+    """Busy-loop processes beside a test (see the module docstring)."""
+
+    def __init__(self, processes: int | None = None, max_seconds: float = 1800.0) -> None:
+        self.count = processes or os.cpu_count() or 1
+        self.max_seconds = max_seconds
+        self._processes: list[subprocess.Popen] = []
+
+    def __enter__(self) -> CpuHog:
+        loop = f"import time\nend = time.monotonic() + {self.max_seconds}\nwhile time.monotonic() < end: pass"
+        self._processes = [
+            subprocess.Popen([sys.executable, "-S", "-c", loop], stdin=subprocess.DEVNULL)
+            for _ in range(self.count)
+        ]
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        for process in self._processes:
+            process.kill()
+        for process in self._processes:
+            process.wait()
 
 
 class Recorder:

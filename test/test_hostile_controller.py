@@ -143,7 +143,7 @@ def vehicle(probe: RosProbe, tmp_path_factory: pytest.TempPathFactory) -> Iterat
 @pytest.fixture(scope="module")
 def simulated_now_ns(vehicle: Vehicle, probe: RosProbe) -> Callable[[], int]:
     """The newest simulated time the simulator published (only it publishes its clock)."""
-    clock = probe.subscribe(f"{vehicle.namespace}/clock", Clock, qos_profile_sensor_data)
+    clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
     clock.wait_for(count=1, timeout=STARTUP_TIMEOUT_S)
     return lambda: stamp_to_ns(clock.messages[-1].clock)
 

@@ -50,7 +50,7 @@ def test_a_command_flood_leaves_the_simulator_running_finite_and_obeying_the_con
     vehicle: Vehicle, probe: RosProbe
 ) -> None:
     vehicle.settle_at(0.0, 0.0, 1.0)
-    clock = probe.subscribe("/hs/clock", Clock, qos_profile_sensor_data)
+    clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
     outputs = [
         vehicle.odom,
         probe.subscribe("/hs/imu", Imu, qos_profile_sensor_data),

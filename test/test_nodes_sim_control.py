@@ -140,8 +140,7 @@ def start_vehicle(
 ) -> Vehicle:
     """Start a simulator and a controller under ``namespace``.
 
-    With ``sim_time`` the controller follows the simulator's clock (``<namespace>/clock``, remapped to
-    where rclpy's time source listens).
+    With ``sim_time`` the simulator publishes the graph's clock (``/clock``) and the controller follows it.
     """
     odom = probe.subscribe(f"{namespace}/odom", Odometry)
     name = namespace.strip("/")
@@ -156,7 +155,6 @@ def start_vehicle(
         directory / f"{name}-controller.log",
         namespace=namespace,
         parameters={**controller, "use_sim_time": sim_time},
-        remaps={"/clock": f"{namespace}/clock"} if sim_time else None,
     )
     return Vehicle(namespace, sim, ctrl, odom, probe)
 
@@ -256,7 +254,7 @@ def test_a_1_m_step_in_x_settles_within_5_s_with_less_than_20_percent_overshoot(
 @pytest.mark.ros
 def test_the_controller_follows_simulated_time(vehicle: Vehicle, probe: RosProbe) -> None:
     commands = probe.subscribe("/t1/motor_speed_cmd", JointState)
-    clock = probe.subscribe("/t1/clock", Clock, qos_profile_sensor_data)
+    clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
     received = commands.wait_for(count=100, timeout=60.0)
     latest_clock = clock.wait_for(count=1)[-1].clock
     stamps = np.array([stamp_s(m) for m in received])
@@ -317,28 +315,22 @@ def test_the_x8_keeps_flying_after_rotor_3_stops(vehicle: Vehicle, probe: RosPro
 
 
 @pytest.mark.ros
-def test_two_namespaced_vehicles_fly_in_one_graph(probe: RosProbe, tmp_path) -> None:
-    # Each vehicle in lockstep with its own clock (<ns>/clock, remapped for its controller): two vehicles
-    # never share a time line, and the result does not depend on how loaded the machine is.
-    vehicles = [
-        start_vehicle(
-            probe,
-            tmp_path,
-            namespace,
-            simulator={"real_time_factor": 0.0, "initial_x": x, "airframe": airframe},
-            controller={"airframe": airframe},
-            sim_time=True,
-        )
-        for namespace, x, airframe in (("/uav1", 0.0, "x8_octorotor"), ("/uav2", 3.0, "quad_x"))
-    ]
-    try:
-        targets = [(0.0, 0.5, 1.0), (3.0, 0.0, 1.5)]
-        sent = [vehicle.fly_to(*target) for vehicle, target in zip(vehicles, targets, strict=True)]
-        for vehicle, target, start in zip(vehicles, targets, sent, strict=True):
-            _, positions = vehicle.between(start + 5.0, start + 6.0)
-            assert np.linalg.norm(positions - target, axis=1).max() < 0.05, vehicle.namespace
-    finally:
-        stop_vehicles(*vehicles)
+def test_a_second_simulator_publishing_the_clock_is_refused_before_it_publishes(
+    vehicle: Vehicle, probe: RosProbe, tmp_path
+) -> None:
+    vehicle.latest()
+    clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
+    second = NodeProcess(
+        "simulator",
+        tmp_path / "second.log",
+        namespace="/uav2",
+        parameters={"real_time_factor": 0.0, "publish_clock": True},
+    )
+    assert second.process.wait(STARTUP_TIMEOUT_S) == 2, second.log_tail()
+    assert "another node already publishes /clock (/t1/simulator)" in second.log_text()
+    # It never published: the graph's time never went back to the second simulator's 0.
+    times = [stamp_to_ns(m.clock) for m in clock.messages]
+    assert times == sorted(times)
 
 
 @pytest.mark.ros

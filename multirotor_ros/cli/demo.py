@@ -3,8 +3,9 @@
 Starts the simulator, the controller and (when this install has it) the identifier as processes
 (``python -m multirotor_ros.cli node NAME``) under the namespace ``/demo``, in lockstep on simulated time
 (real_time_factor 0, the simulator's clock), so that the flight is the same on a fast or a busy machine.
-It sends the setpoints, injects a rotor fault halfway with a parameter set, prints a live status line,
-a summary, what the identifier reported on ``diagnostics``, and can save a plot of the flight.
+It sends the setpoints ahead, stamped with the simulated time each takes effect at, injects a rotor
+fault halfway with a parameter set, prints a live status line, a summary, what the identifier reported
+on ``diagnostics``, and can save a plot of the flight.
 
 The controller reallocates around the rotor the identifier diagnoses (``rotor_effectiveness``); the
 effectiveness it uses is not published, so the demo recomputes it from the same topic with the
@@ -180,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
             "command_timeout_s:=2.0",
         ],
     )
-    sim_time = ["-p", "use_sim_time:=true", "-r", f"/clock:={NAMESPACE}/clock"]
+    sim_time = ["-p", "use_sim_time:=true"]
     reallocation = ["-p", f"fault_tolerant_allocation:={'false' if args.no_reallocation else 'true'}"]
     nodes.start("controller", [*airframe_arg, *sim_time, *reallocation])
     if identifier:
@@ -266,7 +267,7 @@ def _fly_with(
     node.create_subscription(JointState, "motor_speeds", on_speeds, 10)
     node.create_subscription(DiagnosticArray, "diagnostics", on_diagnostics, 10)
     node.create_subscription(Float64MultiArray, "rotor_effectiveness", on_effectiveness, 10)
-    setpoints = node.create_publisher(PoseStamped, "setpoint", 10)
+    setpoints = node.create_publisher(PoseStamped, "setpoint", len(TRAJECTORY) + 10)
 
     _wait(
         lambda: record.t and setpoints.get_subscription_count() > 0,
@@ -274,8 +275,11 @@ def _fly_with(
         nodes,
         "the simulator and controller did not come up",
     )
+    # The whole trajectory at once, each setpoint stamped with the simulated time it takes effect at: the
+    # controller holds them until then, so the flight does not depend on when this process runs.
+    for row in TRAJECTORY:
+        setpoints.publish(_pose(*row[1:], stamp_s=row[0]))
     live = sys.stdout.isatty()
-    sent_target = None
     fault_sent = False
     last_print = 0.0
     last_progress = (time.monotonic(), record.t[-1])
@@ -292,9 +296,6 @@ def _fly_with(
         elif time.monotonic() - last_progress[0] > STALL_TIMEOUT_S:
             raise CommandError(f"simulated time stopped at {t:.2f} s; see the logs in {nodes.log_directory}")
         target = target_at(t)
-        if target != sent_target:
-            setpoints.publish(_pose(*target))
-            sent_target = target
         if args.fault_motor and not fault_sent and t >= FAULT_TIME_S:
             _set_parameter(node, f"{NAMESPACE}/simulator", "fault_motor", args.fault_motor)
             fault_sent = True
@@ -339,11 +340,14 @@ def _wait(condition: Any, timeout: float, nodes: NodeProcesses, what: str) -> No
         time.sleep(0.1)
 
 
-def _pose(x: float, y: float, z: float, yaw: float) -> Any:
+def _pose(x: float, y: float, z: float, yaw: float, stamp_s: float) -> Any:
     from geometry_msgs.msg import PoseStamped
+
+    from multirotor_ros.nodes.messages import stamp_from_ns
 
     message = PoseStamped()
     message.header.frame_id = "odom"
+    message.header.stamp = stamp_from_ns(round(stamp_s * 1e9))
     message.pose.position.x, message.pose.position.y, message.pose.position.z = x, y, z
     message.pose.orientation.z, message.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
     return message

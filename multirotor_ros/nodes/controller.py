@@ -9,9 +9,13 @@ Wiring::
       (Float64MultiArray)                           (control/fault_tolerance.py)
 
 The timer runs on the node's clock, so with ``use_sim_time`` the law runs at ``rate_hz`` of simulated
-time and each command is stamped with the simulated time it was computed at. Until the first setpoint
-the vehicle holds the pose of the first odometry it received. With no odometry for ``odom_timeout_s``
-the node stops sending commands (warning logged once) and the simulator's watchdog stops the rotors.
+time and each command is stamped with the simulated time it was computed at. The clock and the
+odometry of one instant come on two topics in either order: on simulated time a tick whose odometry is
+due but not yet here waits for it (simulation/pacing.py ``StateForTick``), so that in lockstep every
+command is computed from the state of its own instant and a flight is the same on any machine.
+Until the first setpoint the vehicle holds the pose of the first odometry it received. With no
+odometry for ``odom_timeout_s`` the node stops sending commands (warning logged once) and the
+simulator's watchdog stops the rotors.
 Gains: parameters under the paper's names, defaults from the airframe YAML's ``controller`` section,
 settable at run time (validated; the integrals are rescaled so the output does not jump).
 
@@ -50,7 +54,10 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
   refused message leaves the previous diagnosis in force.
 - setpoint: finite, a unit (or all-zero) quaternion, a position within ``StateLimits.position_m`` (the
   MAVLink path's 10 km); the frame, if given, that of the odometry. A refused setpoint leaves the
-  previous one in force. Setpoints are commands, taken when they arrive: their stamp is not used.
+  previous one in force. A setpoint stamped at or before this node's clock (0 included) takes effect at
+  once; one stamped later waits for its time (control/setpoint_queue.py: a mission sent ahead in
+  simulated time flies the same however its messages are delayed); more than an hour ahead, or beyond
+  1000 waiting, it is refused.
 - own output: a rotor speed that is not finite or negative is never published. The node publishes
   nothing that period (the simulator holds the last command; if it happens again and again its watchdog
   stops the rotors, which is right for a controller that cannot compute) and resets the law, whose
@@ -73,6 +80,7 @@ from std_msgs.msg import Float64MultiArray
 from multirotor_ros.control.fault_tolerance import EffectivenessFilter
 from multirotor_ros.control.gains import GAIN_UNITS, airframe_gains
 from multirotor_ros.control.law import SaturationController
+from multirotor_ros.control.setpoint_queue import SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
@@ -80,12 +88,14 @@ from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
     setpoint_from_pose,
+    stamp_from_ns,
     stamp_to_ns,
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.plausibility import NS_PER_S, StampGate, StateLimits, format_vector, jump_refusal
 from multirotor_ros.refusals import Refusal, RefusalCounter
+from multirotor_ros.simulation.pacing import StateForTick
 
 # (p_WB_W, v_WB_W, q_WB, w_WB_B): position and velocity in world ENU, attitude, body rates in FLU.
 State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
@@ -202,6 +212,8 @@ class ControllerNode(Node):
         self._state: State | None = None
         self._state_received_ns = 0
         self._target: tuple[FloatArray, float] | None = None
+        self._scheduled = SetpointQueue()
+        self._state_for_tick = StateForTick()
         self._odom_frame = ""
         self._stale = False
         self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
@@ -217,7 +229,8 @@ class ControllerNode(Node):
         self._yaw_warned = False
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
-        self.create_subscription(Odometry, "odom", self._on_odom, 10)
+        # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
+        self.create_subscription(Odometry, "odom", self._on_odom, 1)
         self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, 10)
         self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
@@ -237,6 +250,10 @@ class ControllerNode(Node):
         self._odom_frame = message.header.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
+        if self._on_sim_time():
+            waiting_tick_ns = self._state_for_tick.state(stamp_to_ns(message.header.stamp))
+            if waiting_tick_ns is not None:
+                self._control(waiting_tick_ns)
 
     def _on_setpoint(self, message: PoseStamped) -> None:
         frame = message.header.frame_id
@@ -251,7 +268,18 @@ class ControllerNode(Node):
         if isinstance(target, Refusal):
             self._setpoint_refusals.refuse(target.reason, target.detail)
             return
-        self._target = target
+        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self.get_clock().now().nanoseconds
+        if stamp_ns <= now_ns:
+            self._target = target
+            return
+        refusal = self._scheduled.schedule(stamp_ns, target, now_ns)
+        if refusal is not None:
+            self._setpoint_refusals.refuse(refusal.reason, refusal.detail)
+
+    def _activate_due_setpoints(self, now_ns: int) -> None:
+        target = self._scheduled.due(now_ns)
+        if target is not None:
+            self._target = target
 
     def _on_effectiveness(self, message: Float64MultiArray) -> None:
         diagnosis = effectiveness_from_message(message, self.airframe.n_rotors)
@@ -295,17 +323,27 @@ class ControllerNode(Node):
         )
 
     def _on_timer(self) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        if self._on_sim_time() and not self._state_for_tick.tick(now_ns):
+            return  # the odometry of this tick is on its way: computed when it arrives
+        self._control(now_ns)
+
+    def _on_sim_time(self) -> bool:
+        return bool(self.get_parameter("use_sim_time").value)
+
+    def _control(self, now_ns: int) -> None:
+        """The law at ``now_ns`` (this node's clock) on the newest state; publishes its command."""
+        self._activate_due_setpoints(now_ns)
         if self._state is None or self._target is None:
             return
-        now = self.get_clock().now()
-        if now.nanoseconds - self._state_received_ns > self._odom_timeout_ns:
+        if now_ns - self._state_received_ns > self._odom_timeout_ns:
             if not self._stale:
                 self.get_logger().warning("odometry is stale: no motor commands until it returns")
             self._stale = True
             return
         self._stale = False
         p, v, q, w = self._state
-        t_s = now.nanoseconds * 1e-9
+        t_s = now_ns * 1e-9
         output = self.law.update(t_s, p, v, q, w, *self._target, effectiveness=self._effectiveness(t_s))
         yaw_given_up = output.allocation.yaw_fraction < YAW_GIVEN_UP_FRACTION
         if self._reallocated and yaw_given_up and not self._yaw_warned:
@@ -324,7 +362,7 @@ class ControllerNode(Node):
             )
             self.law.reset()
             return
-        self._command_pub.publish(joint_state_from_rotor_speeds(speeds, now.to_msg()))
+        self._command_pub.publish(joint_state_from_rotor_speeds(speeds, stamp_from_ns(now_ns)))
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changes = {p.name: float(p.value) for p in parameters if p.name in GAIN_UNITS}

@@ -14,10 +14,28 @@ QoS: odom, motor_speeds, motor_speed_cmd reliable (depth 10); imu, pose, range b
 clock best effort depth 1 (as rclpy's time source subscribes); injected_faults reliable + transient local,
 so a late subscriber gets the current truth.
 
-Pacing: ``real_time_factor`` r > 0 runs r x wall time; 0 runs as fast as possible and, with
-``publish_clock`` and ``lockstep_lead_s`` > 0, in lockstep with the controller (simulation/pacing.py).
-Stamps are simulated time when ``publish_clock`` is set, else wall time at start + simulated time.
-A namespaced simulator publishes ``<ns>/clock``: remap it (``-r clock:=/clock``) for the graph's clock.
+Pacing (simulation/pacing.py), the clock and stamps (issue 10):
+
+- ``real_time_factor`` 0 with ``publish_clock`` (the default of the launch file, ``make demo`` and the
+  tests): lockstep. Simulated time runs one ``control_period_s`` past the newest command's stamp and then
+  waits, however long, for the command of the next period: the same commands give the same flight on an
+  idle or a busy machine. The command watchdog counts simulated time. While it waits the simulator
+  resends its newest odometry and clock every ``RESEND_PERIOD_S`` of wall time (a controller that starts
+  or restarts then gets a state and a tick), says once at INFO that it waits for a first controller, and
+  warns (every ``STALL_REPEAT_S``) when a controller that was commanding has been silent for
+  ``STALL_WARNING_S`` of wall time, naming the input and its publishers. ``control_period_s`` 0 runs as
+  fast as possible without waiting for anyone.
+- ``real_time_factor`` r > 0: r x wall time. A control period is late when the command computed for it
+  (stamped at its start) is not in force before the physics passes its end; the achieved real-time factor
+  and late periods are published every second on ``pacing`` and a throttled warning says when the host
+  cannot keep up. Without ``publish_clock`` (only at r = 1) stamps follow the wall clock: when the physics
+  falls behind, the stamps jump forward with the wall clock rather than drifting behind it.
+- Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
+  node's namespace: a graph has one time. A simulator that finds another node publishing ``/clock``
+  when it starts refuses to run (status 2) before publishing anything; one that finds a second clock
+  appear later says so at ERROR. Several vehicles share one simulator node and its clock.
+- ``pacing`` (diagnostic_msgs/DiagnosticArray, 1 Hz wall): one status ``simulator pacing`` with the
+  target and achieved real-time factors, control periods on time and late, commands, lockstep waits.
 
 Hostile commands (issue 11) are refused, counted per reason, logged once per reason and then summarised
 (refusals.py); a refused command leaves the last accepted one in force. ``motor_speed_cmd`` must name
@@ -35,7 +53,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -62,12 +80,30 @@ from multirotor_ros.nodes.messages import (
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
-from multirotor_ros.simulation.pacing import NS_PER_S, Lockstep, RealTimePacer
+from multirotor_ros.simulation.pacing import NS_PER_S, AchievedRate, ControlTiming, Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR, Reading, VehicleSimulator, period_ns
 
 # Wall time a free-running (real_time_factor 0, no lockstep) simulator computes before serving callbacks.
 FREE_RUN_SLICE_S = 0.005
+# The graph's one clock, whatever the node's namespace (the ROS convention for simulated time).
+GRAPH_CLOCK_TOPIC = "/clock"
+# Wall time to discover other clock publishers before this simulator publishes its own.
+CLOCK_CHECK_S = 1.0
+# While lockstep waits: resend the newest state this often; warn about a silent controller after
+# STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
+RESEND_PERIOD_S = 0.25
+STALL_WARNING_S = 2.0
+STALL_REPEAT_S = 10.0
+# The pacing status goes out this often (wall time); in real time a second in which the achieved factor is
+# below SLOW_FACTOR_SHARE of the target or more than LATE_PERIOD_SHARE of the control periods were late
+# raises a warning, repeated at most every SLOW_WARNING_REPEAT_S.
+STATUS_PERIOD_S = 1.0
+SLOW_FACTOR_SHARE = 0.95
+LATE_PERIOD_SHARE = 0.01
+SLOW_WARNING_REPEAT_S = 10.0
+# Queue depth of the state topics (odom, motor_speeds): about 0.2 s at 250 Hz.
+STATE_QUEUE_DEPTH = 50
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -91,11 +127,11 @@ def simulator_parameters(n_rotors: int) -> list[NodeParameter]:
             "publish_clock", False, "publish simulated time on clock (for use_sim_time nodes)", read_only=True
         ),
         NodeParameter(
-            "lockstep_lead_s",
+            "control_period_s",
             0.004,
-            "at real_time_factor 0 with publish_clock: how far simulated time "
-            "may run past the newest command's stamp; the controller's period (a longer lead makes its "
-            "timer skip periods); 0 = no lockstep",
+            "the controllers' period (1 / their rate_hz): in lockstep (real_time_factor 0, publish_clock) "
+            "simulated time runs this far past the newest command and waits for the next; in real time a "
+            "period whose command comes later is counted late; 0 = as fast as possible without lockstep",
             "s",
             0.0,
             1.0,
@@ -104,8 +140,7 @@ def simulator_parameters(n_rotors: int) -> list[NodeParameter]:
         NodeParameter(
             "command_timeout_s",
             0.5,
-            "without a motor command for this long the rotors stop "
-            "(0 = never); also the wall time a lockstep simulator waits before running on",
+            "without a motor command for this long of simulated time the rotors stop (0 = never)",
             "s",
             0.0,
             60.0,
@@ -165,6 +200,14 @@ def sensor_parameters(config: SensorConfig) -> list[NodeParameter]:
     ]
 
 
+@dataclass
+class _Stall:
+    """A lockstep wait warned about: the simulated time it stands at, the wall time of the last warning."""
+
+    at_ns: int
+    warned_at_s: float
+
+
 class SimulatorNode(Node):
     """The simulated vehicle as a ROS node; see the module docstring."""
 
@@ -180,6 +223,12 @@ class SimulatorNode(Node):
         specs = simulator_parameters(n) + sensor_parameters(airframe_sensor_config(self.airframe))
         self._specs = {spec.name: spec for spec in specs}
         p = declare_parameters(self, specs)
+        rate, clock_on = p["real_time_factor"], p["publish_clock"]
+        if rate != 1.0 and not clock_on:
+            raise ValueError(
+                f"real_time_factor {rate:g} needs publish_clock:=true (and use_sim_time:=true on the other "
+                "nodes): without a clock the stamps could follow neither the wall clock nor simulated time"
+            )
         sensors = SensorConfig(**{f.name: p[f"sensors.{f.name}"] for f in fields(SensorConfig)})
         self.sim = VehicleSimulator(
             self.airframe,
@@ -199,51 +248,105 @@ class SimulatorNode(Node):
         self._names = rotor_names(n)
         self._frames = (p["frame_prefix"] + "odom", p["frame_prefix"] + "base_link")
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
-        self._stamp_offset_ns = 0 if p["publish_clock"] else self.get_clock().now().nanoseconds
         self._publish_period_ns = period_ns(p["publish_rate_hz"])
+        control_period_ns = round(p["control_period_s"] * NS_PER_S)
         self._command_gate = (
-            StampGate(future_tolerance_s=self._publish_period_ns / NS_PER_S)
-            if p["publish_clock"]
-            else StampGate()
+            StampGate(future_tolerance_s=self._publish_period_ns / NS_PER_S) if clock_on else StampGate()
         )
         self.unstamped_commands = 0
         self._refusals = RefusalCounter(self.get_logger().warning, "motor_speed_cmd")
+        self._lockstep = Lockstep(control_period_ns) if rate == 0 and clock_on and control_period_ns else None
+        self._pacer = RealTimePacer(rate) if rate > 0 else None
+        self._timing = ControlTiming(control_period_ns or self._publish_period_ns)
+        self._achieved = AchievedRate(time.monotonic(), 0)
+        self._late_at_status = 0
+        self._on_time_at_status = 0
+        # Without a clock, stamps are the wall clock: simulated time + this offset, set by the pacing anchor.
+        self._stamp_offset_ns = 0
+        self._started = False
+        self._other_clocks_reported = False
+        self._stall: _Stall | None = None
+        self.lockstep_stalls = 0
+        self._last_odometry: Odometry | None = None
+        self._last_resend_s = -math.inf
+        self._last_slow_warning_s = -math.inf
 
         self._pub = {
-            "odom": self.create_publisher(Odometry, "odom", 10),
+            # Deep queues: a subscriber busy for a moment (the identifier refitting) still gets the backlog.
+            "odom": self.create_publisher(Odometry, "odom", STATE_QUEUE_DEPTH),
             "imu": self.create_publisher(Imu, "imu", qos_profile_sensor_data),
             "pose": self.create_publisher(PoseStamped, "pose", qos_profile_sensor_data),
             "range": self.create_publisher(Range, "range", qos_profile_sensor_data),
-            "motor_speeds": self.create_publisher(JointState, "motor_speeds", 10),
+            "motor_speeds": self.create_publisher(JointState, "motor_speeds", STATE_QUEUE_DEPTH),
         }
-        self._clock_pub = self.create_publisher(Clock, "clock", CLOCK_QOS) if p["publish_clock"] else None
+        self._clock_pub = self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if clock_on else None
         self._faults_pub = self.create_publisher(DiagnosticArray, "injected_faults", LATCHED_QOS)
-        self.create_subscription(JointState, "motor_speed_cmd", self._on_command, 10)
+        self._pacing_pub = self.create_publisher(DiagnosticArray, "pacing", 10)
+        self._command_sub = self.create_subscription(JointState, "motor_speed_cmd", self._on_command, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        rate = p["real_time_factor"]
-        self._lockstep = None
-        if rate == 0 and p["publish_clock"] and p["lockstep_lead_s"] > 0:
-            self._lockstep = Lockstep(
-                round(p["lockstep_lead_s"] * NS_PER_S),
-                max(p["command_timeout_s"], 0.1),
-                last_command_wall_s=time.monotonic(),
-            )
-        self._pacer = RealTimePacer(rate if rate > 0 else 1.0)
-        # A wall-clock timer drives the physics; at real_time_factor 0 it fires continuously (period 0)
-        # unless lockstep lets commands drive it, when it only watches for a controller that went silent.
         wall = steady_clock()
-        period = self._publish_period_ns / NS_PER_S if rate > 0 or self._lockstep else 0.0
-        self.create_timer(period, self._on_timer, clock=wall)
+        # The physics runs from a wall-clock timer: every publish period in real time, continuously when
+        # free-running; in lockstep commands drive it and the timer watches for a silent controller.
+        free_running = rate == 0 and self._lockstep is None
+        self.create_timer(
+            0.0 if free_running else self._publish_period_ns / NS_PER_S, self._on_timer, clock=wall
+        )
         self.create_timer(1.0, self._publish_faults, clock=wall)
-        self._publish(self.sim.run_until(0))
-        self._publish_faults()
+        self.create_timer(STATUS_PERIOD_S, self._publish_status, clock=wall)
+        if clock_on:
+            # Discovery needs a moment: look for another clock before publishing one.
+            self._clock_watch = self.create_timer(CLOCK_CHECK_S, self._watch_clocks, clock=wall)
+        else:
+            self._start()
         self.get_logger().info(
             f"{self.airframe.name}: {n} rotors, physics {p['physics_rate_hz']:g} Hz, "
-            f"real_time_factor {rate:g}{', lockstep' if self._lockstep else ''}"
-            f"{', publishing clock' if p['publish_clock'] else ''}"
+            f"real_time_factor {rate:g}"
+            + (f", lockstep on control periods of {p['control_period_s']:g} s" if self._lockstep else "")
+            + (f", publishing {GRAPH_CLOCK_TOPIC}" if clock_on else ", stamps on the wall clock")
         )
+
+    # ------------------------------------------------------------------ start and the graph's clock
+
+    def _start(self) -> None:
+        self._started = True
+        if self._clock_pub is None:
+            self._stamp_offset_ns = self.get_clock().now().nanoseconds
+        self._achieved = AchievedRate(time.monotonic(), self.sim.t_ns)
+        self._publish(self.sim.run_until(0))
+        self._publish_faults()
+        if self._lockstep is not None:
+            self._run_to(self._lockstep.limit_ns())
+
+    def _other_clock_publishers(self) -> list[str]:
+        me = self.get_fully_qualified_name()
+        names = [
+            f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            for info in self.get_publishers_info_by_topic(GRAPH_CLOCK_TOPIC)
+        ]
+        if me in names:
+            names.remove(me)
+        return sorted(names)
+
+    def _watch_clocks(self) -> None:
+        """First call: refuse to start beside another clock, else start. Later: report a second clock."""
+        others = self._other_clock_publishers()
+        if not self._started:
+            if others:
+                self.get_logger().error(
+                    f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others)}): a graph has "
+                    "one simulated time, so this simulator does not start. Fly several vehicles in one "
+                    "simulator node (parameter vehicles), or give each simulator a ROS_DOMAIN_ID of its own"
+                )
+                raise SystemExit(2)
+            self._start()
+        elif others and not self._other_clocks_reported:
+            self._other_clocks_reported = True
+            self.get_logger().error(
+                f"a second node publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others)}): use_sim_time nodes now "
+                "follow two clocks and jump between them; stop one of the simulators"
+            )
 
     # ------------------------------------------------------------------ inputs
 
@@ -254,14 +357,17 @@ class SimulatorNode(Node):
         if isinstance(result, Refusal):
             self._refusals.refuse(result.reason, result.detail)
             return
+        self.sim.set_command(result.speeds_rad_s)
         if not result.stamp_ns:
             self.unstamped_commands += 1
             self.get_logger().info(
                 "motor_speed_cmd without a stamp: taken as of now (unstamped commands are counted)", once=True
             )
-        self.sim.set_command(result.speeds_rad_s)
-        if self._lockstep is not None and result.stamp_ns:
-            self._lockstep.command(result.stamp_ns - self._stamp_offset_ns, time.monotonic())
+            return
+        stamp_ns = result.stamp_ns - self._stamp_offset_ns
+        self._timing.command(stamp_ns)
+        if self._lockstep is not None and self._started:
+            self._lockstep.command(stamp_ns)
             self._run_to(self._lockstep.limit_ns())
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
@@ -288,30 +394,72 @@ class SimulatorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _on_timer(self) -> None:
-        if self._lockstep is not None:
-            if self._lockstep.stalled(time.monotonic()):
-                self._run_to(self._pacer.target(time.monotonic_ns(), self.sim.t_ns))
-            else:
-                self._pacer.anchor(time.monotonic_ns(), self.sim.t_ns)
+        if not self._started:
             return
-        if self._params["real_time_factor"] > 0:
-            self._run_to(self._pacer.target(time.monotonic_ns(), self.sim.t_ns))
-            if self._pacer.fell_behind:
-                self.get_logger().warning(
-                    "the physics cannot keep up with real_time_factor: slowing down", once=True
-                )
+        if self._lockstep is not None:
+            self._watch_lockstep()
+        elif self._pacer is not None:
+            behind = self._pacer.fell_behind
+            target = self._pacer.target(time.monotonic_ns(), self.sim.t_ns)
+            if self._pacer.fell_behind != behind and self._clock_pub is None:
+                # The simulation slows down; the stamps stay on the wall clock (a gap, not a drift).
+                self._stamp_offset_ns = self.get_clock().now().nanoseconds - target
+            self._run_to(target)
         else:
             # As fast as possible: several publish periods per tick (each executor round costs about as
             # much as a period of physics), then back to the executor for commands and parameters.
             deadline = time.perf_counter() + FREE_RUN_SLICE_S
-            while True:
+            while time.perf_counter() <= deadline:
                 self._run_to(self.sim.t_ns + self._publish_period_ns)
-                if time.perf_counter() > deadline:
-                    break
 
     def _run_to(self, t_ns: int) -> None:
         if t_ns > self.sim.t_ns:
             self._publish(self.sim.run_until(t_ns))
+            self._timing.physics_at(self.sim.t_ns)
+        if self._lockstep is not None:
+            self._lockstep.reached(self.sim.t_ns, time.monotonic())
+
+    def _watch_lockstep(self) -> None:
+        """Resend the state while simulated time waits; say when a controller is missing or went silent."""
+        assert self._lockstep is not None
+        now_s = time.monotonic()
+        waited_s = self._lockstep.waiting_s(now_s)
+        if self._stall is not None and self._stall.at_ns != self.sim.t_ns:
+            self.get_logger().info(
+                f"lockstep resumed at t = {self._stall.at_ns / NS_PER_S:.3f} s: motor_speed_cmd is back"
+            )
+            self._stall = None
+        if waited_s > RESEND_PERIOD_S and now_s - self._last_resend_s > RESEND_PERIOD_S:
+            self._last_resend_s = now_s
+            self._resend_state()
+        if waited_s < STALL_WARNING_S:
+            return
+        if self._lockstep.commands == 0:
+            self.get_logger().info(
+                f"lockstep: simulated time waits at {self.sim.t_s:.3f} s for the first motor_speed_cmd "
+                f"(from a controller with use_sim_time:=true and rate 1 / control_period_s = "
+                f"{NS_PER_S / self._lockstep.period_ns:g} Hz)",
+                once=True,
+            )
+            return
+        if self._stall is not None and now_s - self._stall.warned_at_s < STALL_REPEAT_S:
+            return
+        if self._stall is None:
+            self.lockstep_stalls += 1
+        self._stall = _Stall(at_ns=self.sim.t_ns, warned_at_s=now_s)
+        self.get_logger().warning(
+            f"lockstep: simulated time has stood at {self.sim.t_s:.3f} s for {waited_s:.1f} s of wall time: "
+            f"motor_speed_cmd went silent after the command stamped "
+            f"{self._lockstep.newest_command_ns / NS_PER_S:.3f} s (its publishers: "
+            f"{self._command_publishers()}); waiting for it"
+        )
+
+    def _command_publishers(self) -> str:
+        names = [
+            f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+            for info in self.get_publishers_info_by_topic(self._command_sub.topic_name)
+        ]
+        return ", ".join(sorted(names)) or "none"
 
     # ------------------------------------------------------------------ outputs
 
@@ -320,7 +468,8 @@ class SimulatorNode(Node):
             stamp = stamp_from_ns(reading.t_ns + self._stamp_offset_ns)
             kind, data = reading.kind, reading.data
             if kind == "odom":
-                self._pub["odom"].publish(odometry_message(data, stamp, *self._frames))
+                self._last_odometry = odometry_message(data, stamp, *self._frames)
+                self._pub["odom"].publish(self._last_odometry)
                 if self._clock_pub is not None:
                     self._clock_pub.publish(Clock(clock=stamp))
             elif kind == "imu":
@@ -338,6 +487,13 @@ class SimulatorNode(Node):
                     f"no motor command for {data:.2f} s of simulated time: rotors stopped"
                 )
 
+    def _resend_state(self) -> None:
+        """The newest odometry and clock again (same stamps), for a controller that is starting."""
+        if self._last_odometry is not None:
+            self._pub["odom"].publish(self._last_odometry)
+        if self._clock_pub is not None:
+            self._clock_pub.publish(Clock(clock=stamp_from_ns(self.sim.t_ns)))
+
     def _range_message(self, stamp: Any, distance: float) -> Range:
         c = self.sim.sensor_config
         message = Range()
@@ -349,6 +505,65 @@ class SimulatorNode(Node):
         message.max_range = c.range_max_m
         message.range = distance
         return message
+
+    def _publish_status(self) -> None:
+        """The ``pacing`` status; a throttled warning when the host cannot keep up with real time."""
+        if not self._started:
+            return
+        now_s = time.monotonic()
+        recent, overall = self._achieved.take(now_s, self.sim.t_ns)
+        late = self._timing.late - self._late_at_status
+        periods = late + self._timing.on_time - self._on_time_at_status
+        self._late_at_status, self._on_time_at_status = self._timing.late, self._timing.on_time
+        target = self._params["real_time_factor"]
+        slow = self._pacer is not None and (
+            recent < SLOW_FACTOR_SHARE * target or late > LATE_PERIOD_SHARE * max(periods, 1)
+        )
+        if slow and now_s - self._last_slow_warning_s > SLOW_WARNING_REPEAT_S:
+            self._last_slow_warning_s = now_s
+            self.get_logger().warning(
+                f"the host cannot keep up with real_time_factor {target:g}: achieved {recent:.2f} over the "
+                f"last {STATUS_PERIOD_S:g} s, {late} of {periods} control periods late (their command came "
+                f"after the period ended; {self._timing.late} late since the start); see the pacing topic"
+            )
+        waiting_s = 0.0 if self._lockstep is None else self._lockstep.waiting_s(now_s)
+        values = {
+            "target_real_time_factor": f"{target:g}",
+            "achieved_real_time_factor": f"{recent:.3f}",
+            "achieved_real_time_factor_since_start": f"{overall:.3f}",
+            "simulated_time_s": f"{self.sim.t_s:.3f}",
+            "control_periods_on_time": str(self._timing.on_time),
+            "control_periods_late": str(self._timing.late),
+            "physics_fell_behind": str(0 if self._pacer is None else self._pacer.fell_behind),
+            "lockstep_waiting_s": f"{waiting_s:.3f}",
+            "lockstep_stalls": str(self.lockstep_stalls),
+            "unstamped_commands": str(self.unstamped_commands),
+            "refused_commands": str(self._refusals.total),
+        }
+        if self._stall is not None:
+            level, text = DiagnosticStatus.WARN, f"lockstep waiting {waiting_s:.1f} s for motor_speed_cmd"
+        elif slow:
+            level, text = (
+                DiagnosticStatus.WARN,
+                f"behind real time: {recent:.2f} of {target:g}, {late} late periods",
+            )
+        else:
+            level, text = (
+                DiagnosticStatus.OK,
+                "keeping up" if self._pacer else "lockstep" if self._lockstep else "free-running",
+            )
+        message = DiagnosticArray()
+        message.header.stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
+        message.status.append(
+            DiagnosticStatus(
+                level=level,
+                name="simulator pacing",
+                message=text,
+                hardware_id=self.get_fully_qualified_name(),
+                values=[KeyValue(key=key, value=value) for key, value in values.items()],
+            )
+        )
+        self._pacing_pub.publish(message)
 
     def _publish_faults(self) -> None:
         message = DiagnosticArray()

@@ -1,12 +1,19 @@
-"""How fast simulated time runs against the wall clock: real-time factor and lockstep, as pure rules.
+"""How simulated time runs against the wall clock and the controllers, as pure rules (no ROS).
 
-- ``real_time_factor`` r > 0: simulated time follows r x wall time from an anchor. When the physics
-  cannot keep up for longer than ``max_lag_s`` of simulated time, the anchor moves (the simulation
-  slows down rather than trying to catch up in a burst) and the pacer says so once per episode.
-- ``real_time_factor`` 0 with lockstep: simulated time may run at most ``lead_ns`` past the stamp of the
-  newest motor command, so that a controller on ``use_sim_time`` gets every state it needs before the
-  physics goes on, however slow either side is. Without any command for ``fallback_after_s`` of wall time
-  (no controller yet, or one that stopped) the simulation runs on in real time until commands return.
+- ``real_time_factor`` r > 0 (:class:`RealTimePacer`): simulated time follows r x wall time from an
+  anchor. When the physics cannot keep up for longer than ``max_lag_s`` of simulated time, the anchor
+  moves (the simulation slows down rather than catching up in a burst) and the pacer counts it.
+- Lockstep at ``real_time_factor`` 0 (:class:`Lockstep`): simulated time runs at most one control period
+  past the stamp of the newest motor command, so that every control period is integrated with the
+  command computed for it, however slow the machine, the simulator or the controller: the same commands
+  give the same flight. There is no wall-time escape: a controller that stops stops simulated time, and
+  the simulator says so (:meth:`Lockstep.waiting_s`) instead of flying on with a stale command.
+- :class:`ControlTiming`: in real time, whether each control period got its command in time (the command
+  for the period starting at t, stamped t, is in force before the physics passes t + one period), and the
+  achieved real-time factor: what the simulator reports on its ``pacing`` topic.
+- :class:`StateForTick`: the controller's side of lockstep. Its timer fires on the simulated clock, and the
+  clock and the odometry for the same instant arrive on two topics in either order; waiting for the
+  odometry of the tick (when the stream says one is due) makes the command the same in every run.
 """
 
 from __future__ import annotations
@@ -46,22 +53,124 @@ class RealTimePacer:
 
 @dataclass
 class Lockstep:
-    """Lockstep rule at real_time_factor 0 (see the module docstring)."""
+    """Lockstep rule at real_time_factor 0 (see the module docstring).
 
-    lead_ns: int
-    fallback_after_s: float
+    ``period_ns``: the controller's period; the physics may run that far past the newest command's stamp
+    (so up to the next tick of a controller whose first tick is one period after 0).
+    """
+
+    period_ns: int
     newest_command_ns: int = 0  # stamp of the newest command (sim time); commands start at 0
-    last_command_wall_s: float = 0.0
+    commands: int = 0
+    # (simulated time, wall time) of the start of the current wait at the limit, None while it runs.
+    _wait: tuple[int, float] | None = None
 
     def limit_ns(self) -> int:
         """Simulated time the physics may run up to now."""
-        return self.newest_command_ns + self.lead_ns
+        return self.newest_command_ns + self.period_ns
 
-    def command(self, stamp_ns: int, wall_s: float) -> None:
-        """A stamped command arrived at wall time ``wall_s`` (unstamped messages do not count)."""
+    def command(self, stamp_ns: int) -> None:
+        """A stamped command arrived (unstamped ones do not count: they belong to no period)."""
         self.newest_command_ns = max(self.newest_command_ns, stamp_ns)
-        self.last_command_wall_s = wall_s
+        self.commands += 1
 
-    def stalled(self, wall_s: float) -> bool:
-        """Whether no command came for so long that the simulator should run on in real time."""
-        return wall_s - self.last_command_wall_s > self.fallback_after_s
+    def reached(self, sim_ns: int, wall_s: float) -> None:
+        """The physics is at ``sim_ns`` at wall time ``wall_s``: a wait starts when it gets to the limit."""
+        if sim_ns < self.limit_ns():
+            self._wait = None
+        elif self._wait is None or self._wait[0] != sim_ns:
+            self._wait = (sim_ns, wall_s)
+
+    def waiting_s(self, wall_s: float) -> float:
+        """Wall time [s] simulated time has stood still waiting for a command (0 while it runs)."""
+        return 0.0 if self._wait is None else wall_s - self._wait[1]
+
+
+class ControlTiming:
+    """Real-time bookkeeping: control periods on time or late, and the achieved real-time factor.
+
+    A control period [t, t + period) is on time when a command stamped t or later is in force before the
+    physics passes t + period; late otherwise (the physics ran that period on an older command). Periods
+    before the first command are not counted: no controller is there yet.
+    """
+
+    def __init__(self, period_ns: int):
+        self.period_ns = period_ns
+        self.newest_command_ns: int | None = None
+        self.on_time = 0
+        self.late = 0
+        self._next_check_ns: int | None = None
+
+    def command(self, stamp_ns: int) -> None:
+        if self.newest_command_ns is None:
+            self._next_check_ns = stamp_ns + self.period_ns
+        self.newest_command_ns = (
+            stamp_ns if self.newest_command_ns is None else max(self.newest_command_ns, stamp_ns)
+        )
+
+    def physics_at(self, sim_ns: int) -> None:
+        """The physics reached ``sim_ns``: judge every control period that ended by then."""
+        if self.newest_command_ns is None or self._next_check_ns is None:
+            return
+        while self._next_check_ns <= sim_ns:
+            period_start = self._next_check_ns - self.period_ns
+            if self.newest_command_ns >= period_start:
+                self.on_time += 1
+            else:
+                self.late += 1
+            self._next_check_ns += self.period_ns
+
+
+class AchievedRate:
+    """Simulated seconds per wall second since the last call of :meth:`take` (and over the whole run)."""
+
+    def __init__(self, wall_s: float, sim_ns: int):
+        self._start = self._last = (wall_s, sim_ns)
+
+    def take(self, wall_s: float, sim_ns: int) -> tuple[float, float]:
+        """(factor since the last call, factor since the start); 0 when no wall time has passed."""
+        recent = _factor(self._last, (wall_s, sim_ns))
+        self._last = (wall_s, sim_ns)
+        return recent, _factor(self._start, self._last)
+
+
+def _factor(start: tuple[float, int], end: tuple[float, int]) -> float:
+    wall = end[0] - start[0]
+    return (end[1] - start[1]) / NS_PER_S / wall if wall > 0 else 0.0
+
+
+class StateForTick:
+    """Whether the controller has the state for a tick of its timer, or must wait for it (module docstring).
+
+    The state stream's period is learnt from its stamps. A tick at t waits when the newest state is older
+    than t and the next one is due by t (or, before the period is known, whenever the newest is older): the
+    simulator publishes the state for t before the clock reaches t, so it is on its way. A tick that waits
+    is computed when the next state arrives, whatever its stamp; a new tick replaces a tick still waiting
+    (in real time the physics went on without it: a late period, counted by the simulator).
+    """
+
+    def __init__(self) -> None:
+        self.newest_ns: int | None = None
+        self.period_ns: int | None = None
+        self.waiting_tick_ns: int | None = None
+
+    def state(self, stamp_ns: int) -> int | None:
+        """A state stamped ``stamp_ns`` arrived; returns the tick that waited for it, if any."""
+        if self.newest_ns is not None and stamp_ns < self.newest_ns:
+            self.newest_ns = self.period_ns = None  # simulated time went back: a restarted simulator
+        if self.newest_ns is not None and stamp_ns > self.newest_ns:
+            self.period_ns = stamp_ns - self.newest_ns
+        if self.newest_ns is None or stamp_ns > self.newest_ns:
+            self.newest_ns = stamp_ns
+        tick, self.waiting_tick_ns = self.waiting_tick_ns, None
+        return tick
+
+    def tick(self, tick_ns: int) -> bool:
+        """The timer fired at ``tick_ns``: True to compute now, False to wait for the state due."""
+        due = (
+            self.newest_ns is None
+            or (self.period_ns is None and self.newest_ns < tick_ns)
+            or (self.period_ns is not None and self.newest_ns + self.period_ns <= tick_ns)
+        )
+        self.waiting_tick_ns = tick_ns if due else None
+        return not due

@@ -1,0 +1,270 @@
+"""Lockstep over ROS 2 gives the flight of the offline closed loop, on an idle or a loaded machine (issue 10).
+
+The simulator (real_time_factor 0, publishing /clock) and the controller (use_sim_time) run as processes;
+the setpoint sequence that crashed the X8 in real time on a loaded machine (a climb to (1, 2, 3), then a
+step to (-1, -2, 2) with a 90 degree turn) is sent ahead, each setpoint stamped with the simulated time it
+takes effect at. The truth the simulator publishes on ``odom`` is compared with ``simulate_flight``
+flying the same sequence in one Python process, and with the same flight run again with a busy-loop
+process on every core. The pure rules of lockstep are tested here too.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from ros_harness import CpuHog, NodeProcess, RosProbe
+from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
+
+from multirotor_ros.control.setpoint_queue import SetpointQueue
+from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.nodes.messages import stamp_from_ns
+from multirotor_ros.nodes.simulator import STALL_WARNING_S
+from multirotor_ros.simulation.flight import ControlTrace, SetpointSchedule, simulate_flight
+from multirotor_ros.simulation.pacing import NS_PER_S, ControlTiming, Lockstep, StateForTick
+
+MS = 1_000_000
+# (t [s], x, y, z [m], yaw [rad]): the steps of issue 10.
+STEPS = [(0.5, 1.0, 2.0, 3.0, 0.0), (6.0, -1.0, -2.0, 2.0, math.pi / 2), (11.0, 0.0, 0.0, 1.0, 0.0)]
+FLIGHT_S = 16.0
+SEED = 5
+
+
+# ------------------------------------------------------------------ the rules, without ROS
+
+
+def test_lockstep_runs_one_period_past_the_newest_command_and_then_waits() -> None:
+    lockstep = Lockstep(period_ns=4 * MS)
+    assert lockstep.limit_ns() == 4 * MS  # before any command: up to the controller's first tick
+    lockstep.reached(4 * MS, wall_s=10.0)
+    assert lockstep.waiting_s(12.5) == pytest.approx(2.5)  # no wall-time escape: it waits
+    lockstep.command(8 * MS)
+    lockstep.command(6 * MS)  # an older stamp never moves the limit back
+    assert lockstep.limit_ns() == 12 * MS
+    lockstep.reached(9 * MS, wall_s=13.0)
+    assert lockstep.waiting_s(20.0) == 0.0
+    lockstep.reached(12 * MS, wall_s=20.0)
+    lockstep.command(12 * MS)
+    lockstep.reached(16 * MS, wall_s=20.1)  # the next wait starts when the physics gets to the new limit
+    assert lockstep.waiting_s(20.5) == pytest.approx(0.4)
+
+
+def test_a_period_is_late_when_its_command_comes_after_it_ended() -> None:
+    timing = ControlTiming(period_ns=4 * MS)
+    timing.physics_at(40 * MS)  # before any command: no controller, nothing counted
+    timing.command(40 * MS)
+    timing.physics_at(44 * MS)  # the period [40, 44) had its command
+    timing.physics_at(52 * MS)  # [44, 48) and [48, 52) ran on the command of 40: late
+    timing.command(52 * MS)
+    timing.physics_at(56 * MS)
+    assert (timing.on_time, timing.late) == (2, 2)
+
+
+def test_a_tick_waits_for_the_state_that_is_due_and_is_served_by_it() -> None:
+    sync = StateForTick()
+    assert not sync.tick(4 * MS)  # no state yet: wait
+    assert sync.state(4 * MS) == 4 * MS  # ...and the state serves the tick that waited
+    assert sync.state(8 * MS) is None
+    assert sync.tick(8 * MS)  # the state of the tick is here: compute now
+    assert not sync.tick(12 * MS)  # the state of 12 ms is due (period 4 ms) but not here: wait
+    assert sync.state(12 * MS) == 12 * MS
+    sync.state(100 * MS)
+    sync.state(0)  # simulated time went back: a new simulator, whose stream is learnt again
+    assert sync.period_ns is None
+
+
+def test_scheduled_setpoints_take_effect_at_their_stamp_and_the_queue_is_bounded() -> None:
+    queue = SetpointQueue(max_length=2)
+    far = np.zeros(3)
+    assert queue.schedule(2 * NS_PER_S, (far + 2, 0.0), now_ns=0) is None
+    assert queue.schedule(1 * NS_PER_S, (far + 1, 0.0), now_ns=0) is None
+    refusal = queue.schedule(3 * NS_PER_S, (far, 0.0), now_ns=0)
+    assert refusal is not None and refusal.reason == "setpoint queue full"
+    assert queue.due(NS_PER_S - 1) is None
+    np.testing.assert_array_equal(queue.due(5 * NS_PER_S)[0], far + 2)  # the latest of those due
+    assert len(queue) == 0
+    refusal = queue.schedule(1_700_000_000 * NS_PER_S, (far, 0.0), now_ns=0)
+    assert refusal is not None and "stamp setpoints with the controller's clock" in refusal.detail
+
+
+# ------------------------------------------------------------------ over ROS 2
+
+
+def offline_truth() -> tuple[FloatArray, FloatArray]:
+    """(times, true positions) of ``simulate_flight`` at every control step of the same flight."""
+    airframe = load_airframe("x8_octorotor")
+    trace = ControlTrace()
+    simulate_flight(
+        airframe, setpoints=STEPS, duration_s=FLIGHT_S, rng=np.random.default_rng(SEED), trace=trace
+    )
+    schedule = SetpointSchedule(STEPS, [0.0, 0.0, 0.0, 0.0])
+    wanted = np.array([schedule.at(t)[0] for t in trace.t])
+    return trace.t, trace.position_error_W + wanted
+
+
+def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatArray]:
+    """The lockstep flight of STEPS over ROS 2: {odometry stamp [ns]: true position}."""
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
+    setpoints = probe.publisher(f"{namespace}/setpoint", type(setpoint_message(0, 0, 0)), qos=100)
+    name = namespace.strip("/")
+    simulator = NodeProcess(
+        "simulator",
+        directory / f"{name}-simulator.log",
+        namespace=namespace,
+        parameters={"real_time_factor": 0.0, "publish_clock": True, "seed": SEED},
+    )
+    controller = NodeProcess(
+        "controller",
+        directory / f"{name}-controller.log",
+        namespace=namespace,
+        parameters={"use_sim_time": True},
+    )
+    try:
+        probe.wait_for_subscribers(setpoints, timeout=STARTUP_TIMEOUT_S)
+        for t, x, y, z, yaw in STEPS:
+            message = setpoint_message(x, y, z, yaw)
+            message.header.stamp = stamp_from_ns(round(t * NS_PER_S))
+            setpoints.publish(message)
+        odom.wait_for(lambda m: stamp_s(m) >= FLIGHT_S, timeout=900.0)
+        for process in (simulator, controller):
+            process.assert_running()
+    finally:
+        controller.stop()
+        simulator.stop()
+    return {round(stamp_s(m) * NS_PER_S): position(m) for m in odom.messages}
+
+
+@pytest.fixture(scope="module")
+def probe() -> Iterator[RosProbe]:
+    probe = RosProbe()
+    yield probe
+    probe.close()
+
+
+@pytest.fixture(scope="module")
+def idle_flight(probe: RosProbe, tmp_path_factory: pytest.TempPathFactory) -> dict[int, FloatArray]:
+    return fly_over_ros(probe, tmp_path_factory.mktemp("idle"), "/idle")
+
+
+def common(
+    flight: dict[int, FloatArray], times_s: FloatArray, positions: FloatArray
+) -> tuple[FloatArray, ...]:
+    stamps = np.round(times_s * NS_PER_S).astype(np.int64)
+    keep = [k for k, stamp in enumerate(stamps) if int(stamp) in flight]
+    return times_s[keep], positions[keep], np.array([flight[int(stamps[k])] for k in keep])
+
+
+@pytest.mark.ros
+def test_lockstep_over_ros_flies_the_offline_closed_loop(idle_flight: dict[int, FloatArray]) -> None:
+    times, offline, over_ros = common(idle_flight, *offline_truth())
+    assert len(times) > 0.9 * FLIGHT_S * 250, f"only {len(times)} common control steps"
+    error = np.linalg.norm(over_ros - offline, axis=1)
+    # Same physics, law and setpoint times; the law's first step is 4 ms later over ROS (its timer's
+    # first tick), which on the ground changes nothing measurable. The pose sensor's noise is 1 mm.
+    assert error.max() < 1e-3, f"up to {error.max():.2e} m apart at t = {times[error.argmax()]:.3f} s"
+    assert np.linalg.norm(over_ros[-1] - STEPS[-1][1:4]) < 0.05
+
+
+@pytest.mark.ros
+def test_lockstep_gives_the_same_flight_with_every_core_busy(
+    probe: RosProbe, idle_flight: dict[int, FloatArray], tmp_path
+) -> None:
+    with CpuHog():
+        loaded = fly_over_ros(probe, tmp_path, "/loaded")
+    stamps = sorted(set(idle_flight) & set(loaded))
+    assert len(stamps) > 0.9 * FLIGHT_S * 250
+    difference = max(float(np.abs(idle_flight[s] - loaded[s]).max()) for s in stamps)
+    assert difference == 0.0, f"the loaded run differs by up to {difference:.3e} m"
+
+
+# ------------------------------------------------------------------ real time on a loaded machine
+
+
+def pacing_values(message: DiagnosticArray) -> dict[str, str]:
+    (status,) = message.status
+    return {kv.key: kv.value for kv in status.values}
+
+
+@pytest.mark.ros
+def test_real_time_with_every_core_busy_flies_the_steps_and_reports_its_pace(
+    probe: RosProbe, tmp_path
+) -> None:
+    namespace = "/rt"
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
+    pacing = probe.subscribe(f"{namespace}/pacing", DiagnosticArray)
+    setpoints = probe.publisher(f"{namespace}/setpoint", type(setpoint_message(0, 0, 0)), qos=100)
+    with CpuHog():
+        simulator = NodeProcess(
+            "simulator",
+            tmp_path / "simulator.log",
+            namespace=namespace,
+            parameters={"real_time_factor": 1.0, "publish_clock": True, "seed": SEED},
+        )
+        controller = NodeProcess(
+            "controller", tmp_path / "controller.log", namespace=namespace, parameters={"use_sim_time": True}
+        )
+        try:
+            probe.wait_for_subscribers(setpoints, timeout=STARTUP_TIMEOUT_S)
+            start_s = stamp_s(odom.wait_for(count=1, timeout=STARTUP_TIMEOUT_S)[-1])
+            for t, x, y, z, yaw in STEPS:
+                message = setpoint_message(x, y, z, yaw)
+                message.header.stamp = stamp_from_ns(round((start_s + t) * NS_PER_S))
+                setpoints.publish(message)
+            odom.wait_for(lambda m: stamp_s(m) >= start_s + FLIGHT_S, timeout=120.0)
+            report = pacing.wait_for(count=1, timeout=5.0)[-1]
+        finally:
+            controller.stop()
+            simulator.stop()
+    flight = [m for m in odom.messages if stamp_s(m) >= start_s + STEPS[0][0] + 3.0]
+    heights = np.array([position(m)[2] for m in flight])
+    assert heights.min() > 0.5, f"down to {heights.min():.2f} m: it crashed"
+    assert np.linalg.norm(position(flight[-1]) - STEPS[-1][1:4]) < 0.1
+    values = pacing_values(report)
+    assert float(values["target_real_time_factor"]) == 1.0
+    assert 0.0 < float(values["achieved_real_time_factor_since_start"]) <= 1.05
+    on_time, late = int(values["control_periods_on_time"]), int(values["control_periods_late"])
+    assert on_time + late > 0.9 * FLIGHT_S * 250
+    # Late periods are reported, and the log says so when they pile up: never a silent drift.
+    if late > 0.01 * (on_time + late):
+        assert "the host cannot keep up" in simulator.log_text()
+
+
+@pytest.mark.ros
+def test_a_lockstep_simulator_waits_for_a_stalled_controller_and_says_which_input_went_silent(
+    probe: RosProbe, tmp_path
+) -> None:
+    namespace = "/stall"
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
+    simulator = NodeProcess(
+        "simulator",
+        tmp_path / "simulator.log",
+        namespace=namespace,
+        parameters={"real_time_factor": 0.0, "publish_clock": True},
+    )
+    controller = NodeProcess(
+        "controller", tmp_path / "controller.log", namespace=namespace, parameters={"use_sim_time": True}
+    )
+    try:
+        odom.wait_for(lambda m: stamp_s(m) >= 2.0, timeout=STARTUP_TIMEOUT_S)
+        controller.process.send_signal(signal.SIGSTOP)  # as a controller deadlocked in the middleware
+        time.sleep(0.5)
+        stood_at = stamp_s(odom.messages[-1])
+        time.sleep(STALL_WARNING_S + 1.5)
+        assert max(stamp_s(m) for m in odom.messages) == stood_at  # simulated time waits
+        log = simulator.log_text()
+        assert f"lockstep: simulated time has stood at {stood_at:.3f} s" in log
+        assert "motor_speed_cmd went silent" in log and "/stall/controller" in log
+        controller.process.send_signal(signal.SIGCONT)
+        odom.wait_for(lambda m: stamp_s(m) >= stood_at + 1.0, timeout=60.0)
+        assert "lockstep resumed" in simulator.log_text()
+    finally:
+        controller.process.send_signal(signal.SIGCONT)
+        controller.stop()
+        simulator.stop()
