@@ -1,6 +1,8 @@
 """The pure vehicle simulation, setpoint files and the ``multirotor simulate`` command.
 
-Ground contact, command clamp, rotor lag, watchdog, fault injection, sensor statistics, pacing rules.
+Ground contact, command clamp, rotor lag, watchdog, fault injection, sensor statistics, pacing rules;
+fleets (several vehicles in one simulator): per-vehicle commands, faults and watchdogs, and each vehicle
+reading exactly what it reads when simulated alone.
 """
 
 from __future__ import annotations
@@ -10,12 +12,14 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from multirotor_ros.cli import main as cli_main
 from multirotor_ros.io.flight_log import read_flight_log
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import airframe_from_dict, load_airframe
-from multirotor_ros.model.rotation import euler_to_matrix
+from multirotor_ros.model.rotation import euler_to_quat
 from multirotor_ros.simulation.flight import (
     ControlTrace,
     FaultTolerance,
@@ -24,9 +28,14 @@ from multirotor_ros.simulation.flight import (
     read_setpoints,
     simulate_flight,
 )
-from multirotor_ros.simulation.pacing import Lockstep, RealTimePacer
-from multirotor_ros.simulation.sensors import SensorConfig, range_reading, sensor_config_from_section
-from multirotor_ros.simulation.vehicle import NS_PER_S, VehicleSimulator
+from multirotor_ros.simulation.pacing import RealTimePacer
+from multirotor_ros.simulation.sensors import (
+    ImuReading,
+    SensorConfig,
+    range_readings,
+    sensor_config_from_section,
+)
+from multirotor_ros.simulation.vehicle import NS_PER_S, Reading, VehicleSimulator, vehicle_generators
 
 MS = 1_000_000
 
@@ -192,22 +201,25 @@ def test_motion_capture_noise_is_about_a_millimetre(x8) -> None:
     assert positions.std(axis=0) == pytest.approx([0.001] * 3, rel=0.15)
 
 
+def _range(config: SensorConfig, height_m: float, roll_rad: float = 0.0) -> float:
+    (distance,) = range_readings(config, np.array([[0.0, 0.0, height_m]]), euler_to_quat([[roll_rad, 0, 0]]))
+    return float(distance)
+
+
 def test_the_range_sensor_reads_height_plus_its_mount_offset() -> None:
     config = SensorConfig()
-    rng = np.random.default_rng(0)
-    level = np.eye(3)
-    assert range_reading(config, rng, np.array([0, 0, 0.0]), level) == pytest.approx(
-        0.09
-    )  # 0.10 on a 3 cm grid
-    assert range_reading(config, rng, np.array([0, 0, 1.0]), level) == pytest.approx(1.11)
-    tilted = euler_to_matrix([0.3, 0.0, 0.0])
-    assert range_reading(config, rng, np.array([0, 0, 1.0]), tilted) == pytest.approx(
-        1.14
-    )  # 1/cos(0.3) + 0.1
-    assert range_reading(config, rng, np.array([0, 0, 7.0]), level) == math.inf
-    assert range_reading(config, rng, np.array([0, 0, 1.0]), euler_to_matrix([0.6, 0.0, 0.0])) == math.inf
+    assert _range(config, 0.0) == pytest.approx(0.09)  # 0.10 on a 3 cm grid
+    assert _range(config, 1.0) == pytest.approx(1.11)
+    assert _range(config, 1.0, roll_rad=0.3) == pytest.approx(1.14)  # 1/cos(0.3) + 0.1
+    assert _range(config, 7.0) == math.inf
+    assert _range(config, 1.0, roll_rad=0.6) == math.inf  # tilted beyond half the beam: no echo
+    assert _range(config, 1.0, roll_rad=math.pi) == math.inf  # upside down: no echo, and no warning
     exact = dataclasses.replace(config, range_resolution_m=0.0)
-    assert range_reading(exact, rng, np.array([0, 0, 0.5]), level) == pytest.approx(0.6)
+    assert _range(exact, 0.5) == pytest.approx(0.6)
+    # A batch of vehicles: each reads its own height.
+    heights = np.array([[0, 0, 1.0], [5, 5, 2.0], [0, 0, 9.0]])
+    level = np.tile([1.0, 0.0, 0.0, 0.0], (3, 1))
+    np.testing.assert_allclose(range_readings(exact, heights, level), [1.1, 2.1, math.inf])
 
 
 def test_readings_come_at_their_rates(x8) -> None:
@@ -252,6 +264,264 @@ def test_every_shipped_airframe_has_a_valid_sensors_section() -> None:
         assert airframe_sensor_config(load_airframe(name)).imu_rate_hz > 0
 
 
+# ------------------------------------------------------------------ fleets
+
+POSES = [((0.0, 0.0, 2.0), 0.0), ((3.0, 0.0, 0.0), 1.0), ((0.0, 4.0, 1.5), -2.0)]
+
+
+def _fleet(airframe, seed: int, poses=POSES, **options) -> VehicleSimulator:
+    return VehicleSimulator(
+        airframe,
+        rng=vehicle_generators(seed, len(poses)),
+        initial_position_m=[p for p, _ in poses],
+        initial_yaw_rad=[yaw for _, yaw in poses],
+        **options,
+    )
+
+
+def _alone(airframe, seed: int, k: int, poses=POSES, **options) -> VehicleSimulator:
+    """Vehicle k of ``_fleet(airframe, seed, poses)``, simulated on its own with the same generator."""
+    position, yaw = poses[k]
+    return VehicleSimulator(
+        airframe,
+        rng=vehicle_generators(seed, len(poses))[k],
+        initial_position_m=position,
+        initial_yaw_rad=yaw,
+        **options,
+    )
+
+
+def _fly(sim: VehicleSimulator, vehicles: dict[int, int], plan, until_ns: int, period_ns: int) -> list:
+    """Fly ``plan(vehicle, t_ns)`` -> ("command", speeds) | ("fault", (motor, effectiveness)) | None.
+
+    ``vehicles``: the plan's vehicle number -> the index in ``sim`` (a fleet: the same; alone: 0).
+    """
+    readings = sim.run_until(0)
+    for t_ns in range(period_ns, until_ns + 1, period_ns):
+        for vehicle, index in vehicles.items():
+            action = plan(vehicle, t_ns)
+            if action is not None and action[0] == "command":
+                sim.set_command(action[1], vehicle=index)
+            elif action is not None:
+                sim.inject_fault(*action[1], vehicle=index)
+        readings += sim.run_until(t_ns)
+    return readings
+
+
+def _values(reading: Reading) -> np.ndarray:
+    data = reading.data
+    if isinstance(data, ImuReading):
+        return np.concatenate([data.q_WB, data.specific_force_B, data.w_WB_B])
+    if isinstance(data, tuple):
+        return np.concatenate(data)
+    return np.atleast_1d(np.asarray(data, dtype=float))
+
+
+def _assert_same_readings(fleet_readings: list, k: int, alone_readings: list) -> None:
+    mine = [r for r in fleet_readings if r.vehicle == k]
+    assert [(r.kind, r.t_ns) for r in mine] == [(r.kind, r.t_ns) for r in alone_readings]
+    assert all(r.vehicle == 0 for r in alone_readings)
+    for a, b in zip(mine, alone_readings, strict=True):
+        np.testing.assert_array_equal(_values(a), _values(b), err_msg=f"vehicle {k}, {a.kind} at {a.t_ns}")
+
+
+def _plan(hover: float):
+    """Each vehicle its own command wave; vehicle 1 loses 60 % of rotor 3 at 0.4 s; 2 goes silent at 0.3 s."""
+
+    def plan(vehicle: int, t_ns: int):
+        if vehicle == 1 and t_ns == 400 * MS:
+            return ("fault", (3, 0.4))
+        if vehicle == 2 and t_ns > 300 * MS:
+            return None
+        return ("command", np.full(8, hover * (1.0 + 0.02 * math.sin(t_ns / 1e8 + vehicle))))
+
+    return plan
+
+
+def test_each_vehicle_of_a_fleet_reads_exactly_what_it_reads_alone(x8) -> None:
+    # Three vehicles in different places, each with its own commands; one gets a fault, one loses its
+    # commands (its watchdog trips): vehicle k's readings are those of vehicle k simulated alone with the
+    # same generator, bit for bit.
+    fleet = _fleet(x8, seed=7)
+    plan = _plan(fleet.hover_speed_rad_s)
+    together = _fly(fleet, {0: 0, 1: 1, 2: 2}, plan, 1200 * MS, 4 * MS)
+    assert {r.vehicle for r in together} == {0, 1, 2}
+    for k in range(3):
+        alone = _fly(_alone(x8, 7, k), {k: 0}, plan, 1200 * MS, 4 * MS)
+        _assert_same_readings(together, k, alone)
+    assert [(r.vehicle, r.t_ns) for r in together if r.kind == "watchdog"] == [(2, 796 * MS)]
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    count=st.integers(1, 4),
+    seed=st.integers(0, 2**32 - 1),
+    speeds=st.lists(st.floats(0.0, 650.0), min_size=8, max_size=8),
+    fault=st.tuples(st.integers(0, 8), st.floats(0.0, 1.0), st.integers(1, 20)),
+    data=st.data(),
+)
+def test_a_vehicle_reads_the_same_in_any_fleet(count, seed, speeds, fault, data) -> None:
+    # Whatever the fleet's size, the vehicle looked at, its commands and its fault, vehicle k flies and
+    # reads as it does alone; the other vehicles (commanded differently, or not at all) change nothing.
+    x8 = load_airframe("x8_octorotor")
+    k = data.draw(st.integers(0, count - 1), label="vehicle")
+    poses = [((float(i), 0.0, 1.0 + 0.5 * i), 0.3 * i) for i in range(count)]
+    motor, effectiveness, fault_period = fault
+
+    def plan(vehicle: int, t_ns: int):
+        if vehicle == k and t_ns == fault_period * 5 * MS:
+            return ("fault", (motor, effectiveness))
+        if vehicle != k and vehicle % 2:
+            return None  # silent: its watchdog trips
+        scale = 1.0 if vehicle == k else 0.9 + 0.05 * vehicle
+        return ("command", np.asarray(speeds) * scale)
+
+    options = {"command_timeout_s": 0.05}
+    fleet = VehicleSimulator(
+        x8,
+        rng=vehicle_generators(seed, count),
+        initial_position_m=[p for p, _ in poses],
+        initial_yaw_rad=[yaw for _, yaw in poses],
+        **options,
+    )
+    together = _fly(fleet, {i: i for i in range(count)}, plan, 150 * MS, 5 * MS)
+    alone = _fly(_alone(x8, seed, k, poses, **options), {k: 0}, plan, 150 * MS, 5 * MS)
+    _assert_same_readings(together, k, alone)
+
+
+def test_a_fleet_reads_every_vehicle_at_the_same_times(x8) -> None:
+    fleet = _fleet(x8, seed=1, command_timeout_s=0.0)
+    readings = fleet.run_until(NS_PER_S)
+    for k in range(3):
+        kinds = [r.kind for r in readings if r.vehicle == k]
+        assert {kind: kinds.count(kind) for kind in set(kinds)} == {
+            "odom": 251,
+            "imu": 101,
+            "pose": 101,
+            "motor_speeds": 101,
+            "range": 15,
+        }
+    # Within one time, kind after kind, vehicle 0 first.
+    first = [(r.kind, r.vehicle) for r in readings if r.t_ns == 0]
+    assert first[:6] == [("odom", 0), ("odom", 1), ("odom", 2), ("imu", 0), ("imu", 1), ("imu", 2)]
+    # Each vehicle where it was placed: 0 and 2 hover in the air, 1 rests on the ground.
+    odom = {r.vehicle: r.data for r in readings if r.kind == "odom" and r.t_ns == NS_PER_S}
+    for k, (position, _) in enumerate(POSES):
+        np.testing.assert_allclose(odom[k][S.POSITION], position, atol=0.05)
+    np.testing.assert_allclose(
+        fleet.x[:, S.ROTORS_START], [fleet.hover_speed_rad_s, 0.0, fleet.hover_speed_rad_s]
+    )
+
+
+def test_a_vehicle_losing_its_commands_stops_only_its_own_rotors(x8) -> None:
+    fleet = _fleet(x8, seed=2, command_timeout_s=0.2, motor_lag=False)
+    hover = np.full(8, fleet.hover_speed_rad_s)
+    readings = []
+    for t_ns in range(0, 600 * MS, 10 * MS):
+        for k in (0, 1) if t_ns > 100 * MS else (0, 1, 2):
+            fleet.set_command(hover, vehicle=k)  # vehicle 2's last command: at 0.1 s
+        readings += fleet.run_until(t_ns + 10 * MS)
+    notices = [r for r in readings if r.kind == "watchdog"]
+    assert [(r.vehicle, r.t_ns) for r in notices] == [(2, 300 * MS)]
+    assert notices[0].data == pytest.approx(0.2)
+    np.testing.assert_array_equal(fleet.watchdog_tripped, [False, False, True])
+    np.testing.assert_array_equal(fleet.commands_rad_s[2], 0.0)
+    np.testing.assert_array_equal(fleet.x[2, S.ROTORS_START :], 0.0)
+    np.testing.assert_array_equal(fleet.commands_rad_s[:2], [hover, hover])
+    np.testing.assert_array_equal(fleet.x[:2, S.ROTORS_START :], [hover, hover])
+    # Commanded again, it is re-armed: one notice per silence.
+    fleet.set_command(hover, vehicle=2)
+    assert not fleet.watchdog_tripped[2]
+
+
+def test_a_fault_acts_on_its_own_vehicle_only(x8) -> None:
+    poses = [((0.0, 0.0, 5.0), 0.0)] * 3
+    fleet = _fleet(x8, seed=3, poses=poses, effects=[], motor_lag=False, command_timeout_s=0.0)
+    fleet.run_until(10 * MS)
+    fleet.inject_fault(3, 0.0, vehicle=1)
+    np.testing.assert_array_equal(fleet.injected_effectiveness(vehicle=1), [1, 1, 0, 1, 1, 1, 1, 1])
+    np.testing.assert_array_equal(fleet.injected_effectiveness(vehicle=0), 1.0)
+    np.testing.assert_array_equal(fleet.injected_effectiveness(vehicle=2), 1.0)
+    fleet.run_until(20 * MS)
+    assert fleet.acceleration_W(vehicle=1)[2] == pytest.approx(-9.81 / 8, rel=0.02)
+    for k in (0, 2):
+        assert fleet.acceleration_W(vehicle=k)[2] == pytest.approx(0.0, abs=1e-6)
+        np.testing.assert_allclose(fleet.x[k, S.BODY_RATE], 0.0, atol=1e-9)
+    assert fleet.x[1, S.BODY_RATE][0] > 0
+    fleet.inject_fault(0, 0.0, vehicle=1)
+    np.testing.assert_array_equal(fleet.injected_effectiveness(vehicle=1), 1.0)
+
+
+def test_a_hidden_fault_of_the_effects_acts_on_every_vehicle_until_replaced(x8) -> None:
+    fault = {"id": "actuator_fault", "motor": 2, "effectiveness": 0.5, "t_fault_s": 0.5}
+    fleet = _fleet(x8, seed=4, effects=[fault])
+    fleet.inject_fault(0, 0.0, vehicle=2)  # repaired before it strikes
+    fleet.run_until(NS_PER_S)
+    assert [fleet.injected_effectiveness(vehicle=k)[1] for k in range(3)] == [0.5, 0.5, 1.0]
+
+
+def test_every_vehicle_has_its_own_noise_and_imu_bias(x8) -> None:
+    poses = [((0.0, 0.0, 0.0), 0.0)] * 3
+    readings = _fleet(x8, seed=5, poses=poses).run_until(NS_PER_S)
+    forces = [
+        np.array([r.data.specific_force_B for r in readings if r.kind == "imu" and r.vehicle == k])
+        for k in range(3)
+    ]
+    # The same truth (all at rest), three different biases and noise sequences.
+    means = [f.mean(axis=0) for f in forces]
+    assert len({tuple(np.round(m, 6)) for m in means}) == 3
+    assert not np.any(np.isclose(forces[0] - means[0], forces[1] - means[1]))
+
+
+def test_vehicle_generators_do_not_depend_on_the_fleet_size() -> None:
+    few, many = vehicle_generators(11, 2), vehicle_generators(11, 5)
+    for a, b in zip(few, many, strict=False):
+        np.testing.assert_array_equal(a.standard_normal(4), b.standard_normal(4))
+    draws = [g.standard_normal(4) for g in vehicle_generators(11, 5)]
+    assert len({tuple(d) for d in draws}) == 5
+    with pytest.raises(ValueError, match="at least one vehicle"):
+        vehicle_generators(11, 0)
+
+
+@pytest.mark.parametrize("vehicle", [-1, 3, 1.0, True, "0", None])
+def test_a_bad_vehicle_index_is_a_clear_value_error(x8, vehicle) -> None:
+    fleet = _fleet(x8, seed=6)
+    calls = [
+        lambda: fleet.set_command(np.full(8, 300.0), vehicle=vehicle),
+        lambda: fleet.inject_fault(1, 0.5, vehicle=vehicle),
+        lambda: fleet.injected_effectiveness(vehicle=vehicle),
+        lambda: fleet.acceleration_W(vehicle=vehicle),
+    ]
+    for call in calls:
+        with pytest.raises(ValueError, match=r"vehicle .*0\.\.2"):
+            call()
+    np.testing.assert_array_equal(fleet.last_command_ns, [0, -1, 0])  # nothing was taken
+
+
+def test_a_fleet_has_no_single_state_or_command(x8) -> None:
+    fleet = _fleet(x8, seed=6)
+    with pytest.raises(ValueError, match=r"use x\[k\]"):
+        fleet.state  # noqa: B018
+    with pytest.raises(ValueError, match=r"use commands_rad_s\[k\]"):
+        fleet.command_rad_s  # noqa: B018
+    alone = make_sim(x8)
+    np.testing.assert_array_equal(alone.state, alone.x[0])
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"rng": []}, "at least one vehicle"),
+        ({"rng": vehicle_generators(0, 2), "initial_position_m": [(0, 0, 0)] * 3}, "initial_position_m"),
+        ({"rng": vehicle_generators(0, 2), "initial_yaw_rad": [0.0, 1.0, 2.0]}, "initial_yaw_rad"),
+        ({"rng": np.random.default_rng(0), "initial_position_m": [(0, 0, 0)] * 2}, "initial_position_m"),
+    ],
+)
+def test_a_fleet_needs_one_generator_and_pose_per_vehicle(x8, options, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        VehicleSimulator(x8, **options)
+
+
 # ------------------------------------------------------------------ pacing
 
 
@@ -267,16 +537,6 @@ def test_the_pacer_slows_down_instead_of_bursting_when_behind() -> None:
     assert pacer.target(2 * NS_PER_S, 10 * MS) == 10 * MS + 250 * MS
     assert pacer.fell_behind == 1
     assert pacer.target(2 * NS_PER_S + 10 * MS, 260 * MS) == 270 * MS  # re-anchored at (2 s, 260 ms)
-
-
-def test_lockstep_lets_the_physics_run_one_lead_past_the_newest_command() -> None:
-    lockstep = Lockstep(lead_ns=4 * MS, fallback_after_s=0.5, last_command_wall_s=10.0)
-    assert lockstep.limit_ns() == 4 * MS
-    lockstep.command(8 * MS, wall_s=10.1)
-    lockstep.command(6 * MS, wall_s=10.2)  # an older stamp never moves the limit back
-    assert lockstep.limit_ns() == 12 * MS
-    assert not lockstep.stalled(10.6)
-    assert lockstep.stalled(10.8)
 
 
 # ------------------------------------------------------------------ setpoints and the command line

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -60,7 +61,9 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Range
@@ -78,11 +81,18 @@ from multirotor_ros.nodes.messages import (
     stamp_from_ns,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
 from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import NS_PER_S, AchievedRate, ControlTiming, Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
-from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR, Reading, VehicleSimulator, period_ns
+from multirotor_ros.simulation.vehicle import (
+    OVERSIZED_SPEED_FACTOR,
+    Reading,
+    VehicleSimulator,
+    period_ns,
+    vehicle_generators,
+)
 
 # Wall time a free-running (real_time_factor 0, no lockstep) simulator computes before serving callbacks.
 FREE_RUN_SLICE_S = 0.005
@@ -107,8 +117,14 @@ STATE_QUEUE_DEPTH = 50
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def simulator_parameters(n_rotors: int) -> list[NodeParameter]:
-    """The simulator's own parameters (the ``sensors.*`` ones come from the airframe's YAML)."""
+def simulator_parameters(
+    n_rotors: int, vehicles: Sequence[VehicleSpec] = (VehicleSpec(""),)
+) -> list[NodeParameter]:
+    """The simulator's own parameters (the ``sensors.*`` ones come from the airframe's YAML).
+
+    Fault injection is per vehicle: ``fault_motor`` of the one unnamed vehicle, ``NAME.fault_motor`` of a
+    vehicle of the ``vehicles`` list (and the same for ``fault_effectiveness``).
+    """
     return [
         NodeParameter(
             "physics_rate_hz", 1000.0, "integration rate of the physics", "Hz", 10.0, 100000.0, read_only=True
@@ -170,11 +186,24 @@ def simulator_parameters(n_rotors: int) -> list[NodeParameter]:
         NodeParameter(
             "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
         ),
+        *(fault for vehicle in vehicles for fault in fault_parameters(vehicle, n_rotors)),
+    ]
+
+
+def fault_parameters(vehicle: VehicleSpec, n_rotors: int) -> list[NodeParameter]:
+    """``[NAME.]fault_motor`` and ``[NAME.]fault_effectiveness`` of one vehicle."""
+    prefix = f"{vehicle.name}." if vehicle.name else ""
+    return [
         NodeParameter(
-            "fault_motor", 0, "rotor given fault_effectiveness from now on; 0 = no fault", "-", 0, n_rotors
+            prefix + "fault_motor",
+            0,
+            "rotor given fault_effectiveness from now on; 0 = no fault",
+            "-",
+            0,
+            n_rotors,
         ),
         NodeParameter(
-            "fault_effectiveness",
+            prefix + "fault_effectiveness",
             0.0,
             "share of its thrust the faulty rotor gives; 0 = it stops",
             "-",
@@ -208,8 +237,39 @@ class _Stall:
     warned_at_s: float
 
 
+class _VehicleTopics:
+    """One vehicle's side of the node: its topics, frames, command checks and counters."""
+
+    def __init__(self, node: SimulatorNode, index: int, spec: VehicleSpec, frame_prefix: str, clock_on: bool):
+        self.index = index
+        self.spec = spec
+        prefix = spec.prefix
+        self.frames = (frame_prefix + prefix + "odom", frame_prefix + prefix + "base_link")
+        self.fault_parameters = (
+            (f"{spec.name}." if spec.name else "") + "fault_motor",
+            (f"{spec.name}." if spec.name else "") + "fault_effectiveness",
+        )
+        publish_period_s = node.publish_period_ns / NS_PER_S
+        self.command_gate = StampGate(future_tolerance_s=publish_period_s) if clock_on else StampGate()
+        self.refusals = RefusalCounter(node.get_logger().warning, prefix + "motor_speed_cmd")
+        self.unstamped_commands = 0
+        self.last_odometry: Odometry | None = None
+        self.publishers = {
+            # Deep queues: a subscriber busy for a moment (the identifier refitting) still gets the backlog.
+            "odom": node.create_publisher(Odometry, prefix + "odom", STATE_QUEUE_DEPTH),
+            "imu": node.create_publisher(Imu, prefix + "imu", qos_profile_sensor_data),
+            "pose": node.create_publisher(PoseStamped, prefix + "pose", qos_profile_sensor_data),
+            "range": node.create_publisher(Range, prefix + "range", qos_profile_sensor_data),
+            "motor_speeds": node.create_publisher(JointState, prefix + "motor_speeds", STATE_QUEUE_DEPTH),
+        }
+        self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
+        self.commands = node.create_subscription(
+            JointState, prefix + "motor_speed_cmd", lambda message: node.on_command(self, message), 10
+        )
+
+
 class SimulatorNode(Node):
-    """The simulated vehicle as a ROS node; see the module docstring."""
+    """The simulated vehicles as a ROS node; see the module docstring."""
 
     def __init__(self, **kwargs: Any):
         super().__init__("simulator", **kwargs)
@@ -218,9 +278,22 @@ class SimulatorNode(Node):
             "x8_octorotor",
             NodeParameter("airframe", "", "airframe config name or YAML path", read_only=True).descriptor(),
         ).value
+        listed = self.declare_parameter(
+            "vehicles",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(
+                type=ParameterType.PARAMETER_STRING_ARRAY,
+                description="several vehicles in this node: 'NAME [X Y Z [YAW]]' each (nodes/vehicles.py); "
+                "unset = one vehicle, its topics in the node's namespace, posed by initial_*",
+                read_only=True,
+            ),
+        ).value
         self.airframe = load_airframe(name)
         n = self.airframe.n_rotors
-        specs = simulator_parameters(n) + sensor_parameters(airframe_sensor_config(self.airframe))
+        specs_of_vehicles = parse_vehicles(listed or [])
+        specs = simulator_parameters(n, specs_of_vehicles or [VehicleSpec("")]) + sensor_parameters(
+            airframe_sensor_config(self.airframe)
+        )
         self._specs = {spec.name: spec for spec in specs}
         p = declare_parameters(self, specs)
         rate, clock_on = p["real_time_factor"], p["publish_clock"]
@@ -229,60 +302,56 @@ class SimulatorNode(Node):
                 f"real_time_factor {rate:g} needs publish_clock:=true (and use_sim_time:=true on the other "
                 "nodes): without a clock the stamps could follow neither the wall clock nor simulated time"
             )
+        vehicles = specs_of_vehicles or [
+            VehicleSpec("", (p["initial_x"], p["initial_y"], p["initial_z"]), p["initial_yaw"])
+        ]
         sensors = SensorConfig(**{f.name: p[f"sensors.{f.name}"] for f in fields(SensorConfig)})
         self.sim = VehicleSimulator(
             self.airframe,
-            rng=np.random.default_rng(p["seed"]),
+            rng=vehicle_generators(p["seed"], len(vehicles))
+            if specs_of_vehicles
+            else np.random.default_rng(p["seed"]),
             physics_rate_hz=p["physics_rate_hz"],
             odom_rate_hz=p["publish_rate_hz"],
             motor_lag=p["motor_lag"],
             command_timeout_s=p["command_timeout_s"],
             sensors=sensors,
             noise=p["noise"],
-            initial_position_m=(p["initial_x"], p["initial_y"], p["initial_z"]),
-            initial_yaw_rad=p["initial_yaw"],
+            initial_position_m=[v.position_m for v in vehicles],
+            initial_yaw_rad=[v.yaw_rad for v in vehicles],
         )
-        if p["fault_motor"]:
-            self.sim.inject_fault(p["fault_motor"], p["fault_effectiveness"])
         self._params = p
         self._names = rotor_names(n)
-        self._frames = (p["frame_prefix"] + "odom", p["frame_prefix"] + "base_link")
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
-        self._publish_period_ns = period_ns(p["publish_rate_hz"])
+        self.publish_period_ns = period_ns(p["publish_rate_hz"])
+        self.vehicles = [
+            _VehicleTopics(self, k, spec, p["frame_prefix"], clock_on) for k, spec in enumerate(vehicles)
+        ]
+        for vehicle in self.vehicles:
+            motor_name, effectiveness_name = vehicle.fault_parameters
+            if p[motor_name]:
+                self.sim.inject_fault(p[motor_name], p[effectiveness_name], vehicle=vehicle.index)
         control_period_ns = round(p["control_period_s"] * NS_PER_S)
-        self._command_gate = (
-            StampGate(future_tolerance_s=self._publish_period_ns / NS_PER_S) if clock_on else StampGate()
+        self._lockstep = (
+            Lockstep(control_period_ns, len(vehicles))
+            if rate == 0 and clock_on and control_period_ns
+            else None
         )
-        self.unstamped_commands = 0
-        self._refusals = RefusalCounter(self.get_logger().warning, "motor_speed_cmd")
-        self._lockstep = Lockstep(control_period_ns) if rate == 0 and clock_on and control_period_ns else None
         self._pacer = RealTimePacer(rate) if rate > 0 else None
-        self._timing = ControlTiming(control_period_ns or self._publish_period_ns)
+        self._timing = [ControlTiming(control_period_ns or self.publish_period_ns) for _ in vehicles]
         self._achieved = AchievedRate(time.monotonic(), 0)
-        self._late_at_status = 0
-        self._on_time_at_status = 0
+        self._periods_at_status = (0, 0)  # (on time, late) of all vehicles at the last status
         # Without a clock, stamps are the wall clock: simulated time + this offset, set by the pacing anchor.
         self._stamp_offset_ns = 0
         self._started = False
         self._other_clocks_reported = False
         self._stall: _Stall | None = None
         self.lockstep_stalls = 0
-        self._last_odometry: Odometry | None = None
         self._last_resend_s = -math.inf
         self._last_slow_warning_s = -math.inf
 
-        self._pub = {
-            # Deep queues: a subscriber busy for a moment (the identifier refitting) still gets the backlog.
-            "odom": self.create_publisher(Odometry, "odom", STATE_QUEUE_DEPTH),
-            "imu": self.create_publisher(Imu, "imu", qos_profile_sensor_data),
-            "pose": self.create_publisher(PoseStamped, "pose", qos_profile_sensor_data),
-            "range": self.create_publisher(Range, "range", qos_profile_sensor_data),
-            "motor_speeds": self.create_publisher(JointState, "motor_speeds", STATE_QUEUE_DEPTH),
-        }
         self._clock_pub = self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if clock_on else None
-        self._faults_pub = self.create_publisher(DiagnosticArray, "injected_faults", LATCHED_QOS)
         self._pacing_pub = self.create_publisher(DiagnosticArray, "pacing", 10)
-        self._command_sub = self.create_subscription(JointState, "motor_speed_cmd", self._on_command, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -291,7 +360,7 @@ class SimulatorNode(Node):
         # free-running; in lockstep commands drive it and the timer watches for a silent controller.
         free_running = rate == 0 and self._lockstep is None
         self.create_timer(
-            0.0 if free_running else self._publish_period_ns / NS_PER_S, self._on_timer, clock=wall
+            0.0 if free_running else self.publish_period_ns / NS_PER_S, self._on_timer, clock=wall
         )
         self.create_timer(1.0, self._publish_faults, clock=wall)
         self.create_timer(STATUS_PERIOD_S, self._publish_status, clock=wall)
@@ -301,8 +370,13 @@ class SimulatorNode(Node):
         else:
             self._start()
         self.get_logger().info(
-            f"{self.airframe.name}: {n} rotors, physics {p['physics_rate_hz']:g} Hz, "
-            f"real_time_factor {rate:g}"
+            f"{self.airframe.name}: "
+            + (
+                f"{len(vehicles)} vehicles ({', '.join(v.name for v in vehicles)}) of "
+                if specs_of_vehicles
+                else ""
+            )
+            + f"{n} rotors, physics {p['physics_rate_hz']:g} Hz, real_time_factor {rate:g}"
             + (f", lockstep on control periods of {p['control_period_s']:g} s" if self._lockstep else "")
             + (f", publishing {GRAPH_CLOCK_TOPIC}" if clock_on else ", stamps on the wall clock")
         )
@@ -319,19 +393,17 @@ class SimulatorNode(Node):
         if self._lockstep is not None:
             self._run_to(self._lockstep.limit_ns())
 
-    def _other_clock_publishers(self) -> list[str]:
-        me = self.get_fully_qualified_name()
-        names = [
+    def _publisher_names(self, topic: str) -> list[str]:
+        return sorted(
             f"{info.node_namespace.rstrip('/')}/{info.node_name}"
-            for info in self.get_publishers_info_by_topic(GRAPH_CLOCK_TOPIC)
-        ]
-        if me in names:
-            names.remove(me)
-        return sorted(names)
+            for info in self.get_publishers_info_by_topic(topic)
+        )
 
     def _watch_clocks(self) -> None:
         """First call: refuse to start beside another clock, else start. Later: report a second clock."""
-        others = self._other_clock_publishers()
+        others = self._publisher_names(GRAPH_CLOCK_TOPIC)
+        if self.get_fully_qualified_name() in others:
+            others.remove(self.get_fully_qualified_name())
         if not self._started:
             if others:
                 self.get_logger().error(
@@ -350,36 +422,41 @@ class SimulatorNode(Node):
 
     # ------------------------------------------------------------------ inputs
 
-    def _on_command(self, message: JointState) -> None:
+    def on_command(self, vehicle: _VehicleTopics, message: JointState) -> None:
+        """A vehicle's ``motor_speed_cmd``: checked (module docstring), applied, and lockstep moved on."""
         result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
         if not isinstance(result, Refusal) and result.stamp_ns:
-            result = self._command_gate.check(result.stamp_ns, self._now_ns(), "motor_speed_cmd") or result
+            result = vehicle.command_gate.check(result.stamp_ns, self._now_ns(), "motor_speed_cmd") or result
         if isinstance(result, Refusal):
-            self._refusals.refuse(result.reason, result.detail)
+            vehicle.refusals.refuse(result.reason, result.detail)
             return
-        self.sim.set_command(result.speeds_rad_s)
+        self.sim.set_command(result.speeds_rad_s, vehicle=vehicle.index)
         if not result.stamp_ns:
-            self.unstamped_commands += 1
+            vehicle.unstamped_commands += 1
             self.get_logger().info(
                 "motor_speed_cmd without a stamp: taken as of now (unstamped commands are counted)", once=True
             )
             return
         stamp_ns = result.stamp_ns - self._stamp_offset_ns
-        self._timing.command(stamp_ns)
+        self._timing[vehicle.index].command(stamp_ns)
         if self._lockstep is not None and self._started:
-            self._lockstep.command(stamp_ns)
+            self._lockstep.command(stamp_ns, vehicle.index)
             self._run_to(self._lockstep.limit_ns())
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changed = {p.name: p.value for p in parameters}
         self._params.update(changed)
-        if "fault_motor" in changed or "fault_effectiveness" in changed:
-            self.sim.inject_fault(self._params["fault_motor"], float(self._params["fault_effectiveness"]))
+        for vehicle in self.vehicles:
+            motor_name, effectiveness_name = vehicle.fault_parameters
+            if motor_name not in changed and effectiveness_name not in changed:
+                continue
+            motor, effectiveness = self._params[motor_name], float(self._params[effectiveness_name])
+            self.sim.inject_fault(motor, effectiveness, vehicle=vehicle.index)
             self.get_logger().warning(
-                f"fault injected at t = {self.sim.t_s:.3f} s: rotor {self._params['fault_motor']} "
-                f"effectiveness {self._params['fault_effectiveness']:g}"
-                if self._params["fault_motor"]
-                else "fault cleared"
+                f"fault injected at t = {self.sim.t_s:.3f} s: {vehicle.spec.prefix}rotor {motor} "
+                f"effectiveness {effectiveness:g}"
+                if motor
+                else f"{vehicle.spec.prefix}fault cleared"
             )
             self._publish_faults()
         if "command_timeout_s" in changed:
@@ -410,12 +487,13 @@ class SimulatorNode(Node):
             # much as a period of physics), then back to the executor for commands and parameters.
             deadline = time.perf_counter() + FREE_RUN_SLICE_S
             while time.perf_counter() <= deadline:
-                self._run_to(self.sim.t_ns + self._publish_period_ns)
+                self._run_to(self.sim.t_ns + self.publish_period_ns)
 
     def _run_to(self, t_ns: int) -> None:
         if t_ns > self.sim.t_ns:
             self._publish(self.sim.run_until(t_ns))
-            self._timing.physics_at(self.sim.t_ns)
+            for timing in self._timing:
+                timing.physics_at(self.sim.t_ns)
         if self._lockstep is not None:
             self._lockstep.reached(self.sim.t_ns, time.monotonic())
 
@@ -447,58 +525,61 @@ class SimulatorNode(Node):
         if self._stall is None:
             self.lockstep_stalls += 1
         self._stall = _Stall(at_ns=self.sim.t_ns, warned_at_s=now_s)
+        silent = [self.vehicles[k] for k in self._lockstep.behind()]
+        newest_s = self._lockstep.newest_command_ns[silent[0].index] / NS_PER_S
+        topics = "; ".join(
+            f"{vehicle.commands.topic_name} (publishers: "
+            f"{', '.join(self._publisher_names(vehicle.commands.topic_name)) or 'none'})"
+            for vehicle in silent
+        )
         self.get_logger().warning(
             f"lockstep: simulated time has stood at {self.sim.t_s:.3f} s for {waited_s:.1f} s of wall time: "
-            f"motor_speed_cmd went silent after the command stamped "
-            f"{self._lockstep.newest_command_ns / NS_PER_S:.3f} s (its publishers: "
-            f"{self._command_publishers()}); waiting for it"
+            f"motor_speed_cmd went silent after the command stamped {newest_s:.3f} s on {topics}; "
+            "waiting for it"
         )
-
-    def _command_publishers(self) -> str:
-        names = [
-            f"{info.node_namespace.rstrip('/')}/{info.node_name}"
-            for info in self.get_publishers_info_by_topic(self._command_sub.topic_name)
-        ]
-        return ", ".join(sorted(names)) or "none"
 
     # ------------------------------------------------------------------ outputs
 
     def _publish(self, readings: list[Reading]) -> None:
         for reading in readings:
+            vehicle = self.vehicles[reading.vehicle]
             stamp = stamp_from_ns(reading.t_ns + self._stamp_offset_ns)
             kind, data = reading.kind, reading.data
             if kind == "odom":
-                self._last_odometry = odometry_message(data, stamp, *self._frames)
-                self._pub["odom"].publish(self._last_odometry)
-                if self._clock_pub is not None:
+                vehicle.last_odometry = odometry_message(data, stamp, *vehicle.frames)
+                vehicle.publishers["odom"].publish(vehicle.last_odometry)
+                # One clock for all vehicles: after the last one's state of this time.
+                if self._clock_pub is not None and reading.vehicle == len(self.vehicles) - 1:
                     self._clock_pub.publish(Clock(clock=stamp))
             elif kind == "imu":
-                self._pub["imu"].publish(
-                    simulated_imu_message(stamp, self._frames[1], data, self.sim.sensor_config)
+                vehicle.publishers["imu"].publish(
+                    simulated_imu_message(stamp, vehicle.frames[1], data, self.sim.sensor_config)
                 )
             elif kind == "pose":
-                self._pub["pose"].publish(pose_message(stamp, self._frames[0], *data))
+                vehicle.publishers["pose"].publish(pose_message(stamp, vehicle.frames[0], *data))
             elif kind == "range":
-                self._pub["range"].publish(self._range_message(stamp, data))
+                vehicle.publishers["range"].publish(self._range_message(stamp, vehicle.frames[1], data))
             elif kind == "motor_speeds":
-                self._pub["motor_speeds"].publish(joint_state_from_rotor_speeds(data, stamp))
+                vehicle.publishers["motor_speeds"].publish(joint_state_from_rotor_speeds(data, stamp))
             elif kind == "watchdog":
+                which = f" ({vehicle.spec.name})" if vehicle.spec.name else ""
                 self.get_logger().warning(
-                    f"no motor command for {data:.2f} s of simulated time: rotors stopped"
+                    f"no motor command for {data:.2f} s of simulated time{which}: rotors stopped"
                 )
 
     def _resend_state(self) -> None:
         """The newest odometry and clock again (same stamps), for a controller that is starting."""
-        if self._last_odometry is not None:
-            self._pub["odom"].publish(self._last_odometry)
+        for vehicle in self.vehicles:
+            if vehicle.last_odometry is not None:
+                vehicle.publishers["odom"].publish(vehicle.last_odometry)
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.sim.t_ns)))
 
-    def _range_message(self, stamp: Any, distance: float) -> Range:
+    def _range_message(self, stamp: Any, frame_id: str, distance: float) -> Range:
         c = self.sim.sensor_config
         message = Range()
         message.header.stamp = stamp
-        message.header.frame_id = self._frames[1]
+        message.header.frame_id = frame_id
         message.radiation_type = Range.ULTRASOUND
         message.field_of_view = 2.0 * c.range_max_tilt_rad
         message.min_range = c.range_min_m
@@ -512,9 +593,11 @@ class SimulatorNode(Node):
             return
         now_s = time.monotonic()
         recent, overall = self._achieved.take(now_s, self.sim.t_ns)
-        late = self._timing.late - self._late_at_status
-        periods = late + self._timing.on_time - self._on_time_at_status
-        self._late_at_status, self._on_time_at_status = self._timing.late, self._timing.on_time
+        on_time_total = sum(t.on_time for t in self._timing)
+        late_total = sum(t.late for t in self._timing)
+        late = late_total - self._periods_at_status[1]
+        periods = late + on_time_total - self._periods_at_status[0]
+        self._periods_at_status = (on_time_total, late_total)
         target = self._params["real_time_factor"]
         slow = self._pacer is not None and (
             recent < SLOW_FACTOR_SHARE * target or late > LATE_PERIOD_SHARE * max(periods, 1)
@@ -524,7 +607,7 @@ class SimulatorNode(Node):
             self.get_logger().warning(
                 f"the host cannot keep up with real_time_factor {target:g}: achieved {recent:.2f} over the "
                 f"last {STATUS_PERIOD_S:g} s, {late} of {periods} control periods late (their command came "
-                f"after the period ended; {self._timing.late} late since the start); see the pacing topic"
+                f"after the period ended; {late_total} late since the start); see the pacing topic"
             )
         waiting_s = 0.0 if self._lockstep is None else self._lockstep.waiting_s(now_s)
         values = {
@@ -532,13 +615,14 @@ class SimulatorNode(Node):
             "achieved_real_time_factor": f"{recent:.3f}",
             "achieved_real_time_factor_since_start": f"{overall:.3f}",
             "simulated_time_s": f"{self.sim.t_s:.3f}",
-            "control_periods_on_time": str(self._timing.on_time),
-            "control_periods_late": str(self._timing.late),
+            "vehicles": str(len(self.vehicles)),
+            "control_periods_on_time": str(on_time_total),
+            "control_periods_late": str(late_total),
             "physics_fell_behind": str(0 if self._pacer is None else self._pacer.fell_behind),
             "lockstep_waiting_s": f"{waiting_s:.3f}",
             "lockstep_stalls": str(self.lockstep_stalls),
-            "unstamped_commands": str(self.unstamped_commands),
-            "refused_commands": str(self._refusals.total),
+            "unstamped_commands": str(sum(v.unstamped_commands for v in self.vehicles)),
+            "refused_commands": str(sum(v.refusals.total for v in self.vehicles)),
         }
         if self._stall is not None:
             level, text = DiagnosticStatus.WARN, f"lockstep waiting {waiting_s:.1f} s for motor_speed_cmd"
@@ -548,10 +632,8 @@ class SimulatorNode(Node):
                 f"behind real time: {recent:.2f} of {target:g}, {late} late periods",
             )
         else:
-            level, text = (
-                DiagnosticStatus.OK,
-                "keeping up" if self._pacer else "lockstep" if self._lockstep else "free-running",
-            )
+            mode = "keeping up" if self._pacer else "lockstep" if self._lockstep else "free-running"
+            level, text = DiagnosticStatus.OK, mode
         message = DiagnosticArray()
         message.header.stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
         message.status.append(
@@ -566,25 +648,32 @@ class SimulatorNode(Node):
         self._pacing_pub.publish(message)
 
     def _publish_faults(self) -> None:
-        message = DiagnosticArray()
-        message.header.stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
-        for name, effectiveness in zip(self._names, self.sim.injected_effectiveness(), strict=True):
-            level = (
-                DiagnosticStatus.OK
-                if effectiveness == 1.0
-                else (DiagnosticStatus.ERROR if effectiveness == 0.0 else DiagnosticStatus.WARN)
-            )
-            text = "healthy" if effectiveness == 1.0 else f"injected fault: {effectiveness:.0%} of its thrust"
-            message.status.append(
-                DiagnosticStatus(
-                    level=level,
-                    name=name,
-                    message=text,
-                    hardware_id=self.get_fully_qualified_name(),
-                    values=[KeyValue(key="effectiveness", value=f"{effectiveness:g}")],
+        for vehicle in self.vehicles:
+            message = DiagnosticArray()
+            message.header.stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
+            applied = self.sim.injected_effectiveness(vehicle=vehicle.index)
+            for name, effectiveness in zip(self._names, applied, strict=True):
+                level = (
+                    DiagnosticStatus.OK
+                    if effectiveness == 1.0
+                    else (DiagnosticStatus.ERROR if effectiveness == 0.0 else DiagnosticStatus.WARN)
                 )
-            )
-        self._faults_pub.publish(message)
+                text = (
+                    "healthy"
+                    if effectiveness == 1.0
+                    else f"injected fault: {effectiveness:.0%} of its thrust"
+                )
+                message.status.append(
+                    DiagnosticStatus(
+                        level=level,
+                        name=name,
+                        message=text,
+                        hardware_id=self.get_fully_qualified_name()
+                        + (f"/{vehicle.spec.name}" if vehicle.spec.name else ""),
+                        values=[KeyValue(key="effectiveness", value=f"{effectiveness:g}")],
+                    )
+                )
+            vehicle.faults.publish(message)
 
 
 def main(args: list[str] | None = None) -> int:

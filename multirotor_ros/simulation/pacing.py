@@ -18,8 +18,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 NS_PER_S = 1_000_000_000
 
 
@@ -51,28 +49,35 @@ class RealTimePacer:
         return wanted
 
 
-@dataclass
 class Lockstep:
-    """Lockstep rule at real_time_factor 0 (see the module docstring).
+    """Lockstep rule at real_time_factor 0 (see the module docstring), for one or several vehicles.
 
-    ``period_ns``: the controller's period; the physics may run that far past the newest command's stamp
-    (so up to the next tick of a controller whose first tick is one period after 0).
+    ``period_ns``: the controllers' period; the physics may run that far past the newest command's stamp
+    (so up to the next tick of a controller whose first tick is one period after 0). With several
+    vehicles in one simulator it is the newest command of the vehicle whose controller is furthest behind:
+    one time for all.
     """
 
-    period_ns: int
-    newest_command_ns: int = 0  # stamp of the newest command (sim time); commands start at 0
-    commands: int = 0
-    # (simulated time, wall time) of the start of the current wait at the limit, None while it runs.
-    _wait: tuple[int, float] | None = None
+    def __init__(self, period_ns: int, vehicles: int = 1):
+        self.period_ns = period_ns
+        self.newest_command_ns = [0] * vehicles  # stamp of each vehicle's newest command; they start at 0
+        self.commands = 0
+        # (simulated time, wall time) of the start of the current wait at the limit, None while it runs.
+        self._wait: tuple[int, float] | None = None
 
     def limit_ns(self) -> int:
         """Simulated time the physics may run up to now."""
-        return self.newest_command_ns + self.period_ns
+        return min(self.newest_command_ns) + self.period_ns
 
-    def command(self, stamp_ns: int) -> None:
+    def command(self, stamp_ns: int, vehicle: int = 0) -> None:
         """A stamped command arrived (unstamped ones do not count: they belong to no period)."""
-        self.newest_command_ns = max(self.newest_command_ns, stamp_ns)
+        self.newest_command_ns[vehicle] = max(self.newest_command_ns[vehicle], stamp_ns)
         self.commands += 1
+
+    def behind(self) -> list[int]:
+        """The vehicles whose commands hold simulated time back (the newest command is the oldest)."""
+        oldest = min(self.newest_command_ns)
+        return [k for k, stamp in enumerate(self.newest_command_ns) if stamp == oldest]
 
     def reached(self, sim_ns: int, wall_s: float) -> None:
         """The physics is at ``sim_ns`` at wall time ``wall_s``: a wait starts when it gets to the limit."""

@@ -1,4 +1,4 @@
-"""Sensor models of the simulated vehicle; every draw comes from a caller's ``numpy.random.Generator``.
+"""Sensor models of the simulated vehicles; every draw comes from a caller's ``numpy.random.Generator``.
 
 Defaults are the sensors of seed 1's octorotor (§III-A):
 
@@ -19,18 +19,27 @@ Defaults are the sensors of seed 1's octorotor (§III-A):
   of 2 rad/s (assumption: seed 1 gives no figure), 100 Hz.
 
 An airframe YAML's ``sensors:`` section may override any field of :class:`SensorConfig` by name.
+
+Every model is batched over V vehicles sampled at the same time (a fleet; one vehicle is V = 1):
+arrays carry the vehicle on their first axis. The noise comes in as standard normals ``z`` (V, count),
+row k drawn from vehicle k's own generator (:func:`standard_normals`), so that vehicle k's noise is the
+same whether it is simulated alone or in a fleet; each model says how many it takes per vehicle and
+sample (``*_draws``) and in which order it uses them, so a caller may draw for several sensors due at
+the same time in one call per vehicle. The rest is vectorised over the vehicles: elementwise numpy
+arithmetic, and two small compiled kernels for the quaternion arithmetic, neither of which makes one
+vehicle's result depend on how many others share the arrays.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
-from multirotor_ros.model.rotation import FloatArray, euler_to_quat, quat_multiply, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray
 
 DEG = math.pi / 180.0
 G0 = 9.80665  # standard gravity: datasheets give accelerometer figures in g
@@ -121,9 +130,82 @@ def airframe_sensor_config(airframe: Any) -> SensorConfig:
     return sensor_config_from_section(airframe.sections.get("sensors"), origin)
 
 
-def _small_rotation(rng: np.random.Generator, sigma_rad: float) -> FloatArray:
-    """A random rotation quaternion (w, x, y, z) with each Euler angle ~ N(0, sigma)."""
-    return euler_to_quat(rng.normal(0.0, sigma_rad, 3)) if sigma_rad > 0 else np.array([1.0, 0.0, 0.0, 0.0])
+# ------------------------------------------------------------------ batched helpers
+
+
+def standard_normals(rngs: Sequence[np.random.Generator], count: int) -> FloatArray:
+    """(V, count) standard normal draws, row k from ``rngs[k]``: each vehicle draws from its own stream.
+
+    ``sigma * z`` of these equals ``rng.normal(0, sigma, count)``, draw for draw.
+    """
+    out = np.empty((len(rngs), count))
+    if count:
+        for row, rng in zip(out, rngs, strict=True):
+            rng.standard_normal(out=row)
+    return out
+
+
+# Two small kernels do the quaternion arithmetic of every vehicle in one call: in numpy each of their
+# ~40 operations would cost a microsecond of call overhead for arrays of a few vehicles. They are
+# compiled by numba on first use (numba is imported only then: the nodes that merely read this module's
+# types never pay its start-up) and cached on disk; each vehicle is computed by the same scalar code,
+# whatever the number of vehicles.
+_KERNELS: dict[str, Callable[..., None]] = {}
+
+
+def _kernel(function: Callable[..., None]) -> Callable[..., None]:
+    """``function`` compiled by numba (once per process; from numba's disk cache after the first)."""
+    compiled = _KERNELS.get(function.__name__)
+    if compiled is None:
+        from numba import njit
+
+        compiled = _KERNELS[function.__name__] = njit(cache=True, error_model="numpy")(function)
+    return compiled
+
+
+def _to_body_lanes(q_WB: FloatArray, v_W: FloatArray, out: FloatArray) -> None:
+    """out[k] = R(q_WB[k])^T v_W[k]: world vectors in the body frames (R as rotation.quat_to_matrix)."""
+    for k in range(q_WB.shape[0]):
+        w, x, y, z = q_WB[k, 0], q_WB[k, 1], q_WB[k, 2], q_WB[k, 3]
+        a, b, c = v_W[k, 0], v_W[k, 1], v_W[k, 2]
+        out[k, 0] = (1 - 2 * (y * y + z * z)) * a + 2 * (x * y + w * z) * b + 2 * (x * z - w * y) * c
+        out[k, 1] = 2 * (x * y - w * z) * a + (1 - 2 * (x * x + z * z)) * b + 2 * (y * z + w * x) * c
+        out[k, 2] = 2 * (x * z + w * y) * a + 2 * (y * z - w * x) * b + (1 - 2 * (x * x + y * y)) * c
+
+
+def _turned_lanes(q_WB: FloatArray, angles_rad: FloatArray, out: FloatArray) -> None:
+    """out[k] = q_WB[k] ⊗ q(angles_rad[k]), unit norm: attitudes turned by small ZYX angles.
+
+    q(roll, pitch, yaw) as rotation.euler_to_quat; zero angles give (1, 0, 0, 0) and leave q_WB exactly.
+    """
+    for k in range(q_WB.shape[0]):
+        cr, sr = math.cos(angles_rad[k, 0] / 2), math.sin(angles_rad[k, 0] / 2)
+        cp, sp = math.cos(angles_rad[k, 1] / 2), math.sin(angles_rad[k, 1] / 2)
+        cy, sy = math.cos(angles_rad[k, 2] / 2), math.sin(angles_rad[k, 2] / 2)
+        bw = cr * cp * cy + sr * sp * sy
+        bx = sr * cp * cy - cr * sp * sy
+        by = cr * sp * cy + sr * cp * sy
+        bz = cr * cp * sy - sr * sp * cy
+        aw, ax, ay, az = q_WB[k, 0], q_WB[k, 1], q_WB[k, 2], q_WB[k, 3]
+        w = aw * bw - ax * bx - ay * by - az * bz
+        x = aw * bx + ax * bw + ay * bz - az * by
+        y = aw * by - ax * bz + ay * bw + az * bx
+        z = aw * bz + ax * by - ay * bx + az * bw
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        out[k, 0] = w / norm
+        out[k, 1] = x / norm
+        out[k, 2] = y / norm
+        out[k, 3] = z / norm
+
+
+def _turned(q_WB: FloatArray, angles_rad: FloatArray) -> FloatArray:
+    """(V, 4) unit attitudes q_WB (V, 4) turned by small ZYX angles (V, 3)."""
+    out = np.empty((q_WB.shape[0], 4))
+    _kernel(_turned_lanes)(q_WB, angles_rad, out)
+    return out
+
+
+# ------------------------------------------------------------------ sensors
 
 
 @dataclass
@@ -136,66 +218,105 @@ class ImuReading:
 
 
 class Imu:
-    """3DM-GX3-25-like IMU: white noise plus a bias that starts at a draw and random-walks."""
+    """3DM-GX3-25-like IMUs of V vehicles: white noise plus a bias that starts at a draw and walks.
 
-    def __init__(self, config: SensorConfig, rng: np.random.Generator, gravity_m_s2: float):
+    ``z`` (V, :data:`Imu.INITIAL_DRAWS`): standard normals of the initial biases, accelerometer then gyro.
+    Per vehicle k: its bias (``accel_bias[k]``, ``gyro_bias[k]``).
+    """
+
+    INITIAL_DRAWS = 6
+
+    def __init__(self, config: SensorConfig, z: FloatArray, gravity_m_s2: float):
         self.config = config
-        self.rng = rng
         self.gravity_m_s2 = gravity_m_s2
-        self.accel_bias = rng.normal(0.0, config.accel_bias_initial_m_s2, 3)
-        self.gyro_bias = rng.normal(0.0, config.gyro_bias_initial_rad_s, 3)
+        self.accel_bias: FloatArray = config.accel_bias_initial_m_s2 * z[:, 0:3]
+        self.gyro_bias: FloatArray = config.gyro_bias_initial_rad_s * z[:, 3:6]
         self._last_t: float | None = None
 
-    def sample(self, t_s: float, q_WB: FloatArray, a_WB_W: FloatArray, w_WB_B: FloatArray) -> ImuReading:
-        """A reading for the true attitude, acceleration (world, gravity excluded) and body rate."""
+    @staticmethod
+    def draws(config: SensorConfig) -> int:
+        """Standard normals per vehicle and sample, in their order of use.
+
+        Bias walk of the accelerometer, of the gyro, white noise of each (3 each), then 3 for the
+        orientation noise when it is not zero.
+        """
+        return 15 if config.orientation_noise_rad > 0 else 12
+
+    def sample(
+        self, t_s: float, q_WB: FloatArray, a_WB_W: FloatArray, w_WB_B: FloatArray, z: FloatArray
+    ) -> list[ImuReading]:
+        """One reading per vehicle from the true attitudes, accelerations and body rates.
+
+        ``q_WB`` (V, 4); ``a_WB_W`` (V, 3) in world, gravity excluded; ``w_WB_B`` (V, 3); ``z`` (V,
+        :meth:`draws`) standard normals.
+        """
         c = self.config
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
         walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
-        self.accel_bias = self.accel_bias + self.rng.normal(0.0, c.accel_bias_stability_m_s2 * walk, 3)
-        self.gyro_bias = self.gyro_bias + self.rng.normal(0.0, c.gyro_bias_stability_rad_s * walk, 3)
-        R_WB = quat_to_matrix(q_WB)
+        self.accel_bias = self.accel_bias + (c.accel_bias_stability_m_s2 * walk) * z[:, 0:3]
+        self.gyro_bias = self.gyro_bias + (c.gyro_bias_stability_rad_s * walk) * z[:, 3:6]
         # Specific force: what an accelerometer measures, R^T (a - g_vec) with g_vec = (0, 0, -g).
-        f_B = R_WB.T @ (a_WB_W + np.array([0.0, 0.0, self.gravity_m_s2]))
-        f_B = f_B + self.accel_bias + self.rng.normal(0.0, c.accel_sample_std_m_s2, 3)
-        w_B = w_WB_B + self.gyro_bias + self.rng.normal(0.0, c.gyro_sample_std_rad_s, 3)
-        q = quat_multiply(q_WB, _small_rotation(self.rng, c.orientation_noise_rad))
-        return ImuReading(q / np.linalg.norm(q), f_B, w_B)
+        f_B = np.empty_like(a_WB_W)
+        _kernel(_to_body_lanes)(q_WB, a_WB_W + np.array([0.0, 0.0, self.gravity_m_s2]), f_B)
+        f_B = f_B + self.accel_bias + c.accel_sample_std_m_s2 * z[:, 6:9]
+        w_B = w_WB_B + self.gyro_bias + c.gyro_sample_std_rad_s * z[:, 9:12]
+        rotate = c.orientation_noise_rad > 0
+        angles = c.orientation_noise_rad * z[:, 12:15] if rotate else np.zeros_like(a_WB_W)
+        q = _turned(q_WB, angles)
+        return [ImuReading(*reading) for reading in zip(q, f_B, w_B, strict=True)]
 
 
-def range_reading(
-    config: SensorConfig,
-    rng: np.random.Generator,
-    p_WB_W: FloatArray,
-    R_WB: FloatArray,
-    ground_height_m: float = 0.0,
-) -> float:
-    """SRF08 reading [m]: slant distance along body -z to the ground plus the mount offset; +inf = no echo."""
-    cos_tilt = float(R_WB[2, 2])
-    if cos_tilt < math.cos(config.range_max_tilt_rad):
-        return math.inf
+def range_readings(
+    config: SensorConfig, p_WB_W: FloatArray, q_WB: FloatArray, ground_height_m: float = 0.0
+) -> FloatArray:
+    """(V,) SRF08 readings [m]: slant distance along body -z to the ground plus the mount offset.
+
+    +inf = no echo. ``p_WB_W`` (V, 3), ``q_WB`` (V, 4). The SRF08 model draws no noise.
+    """
+    qx, qy = q_WB[:, 1], q_WB[:, 2]
+    cos_tilt = 1 - 2 * (qx * qx + qy * qy)  # R_WB[2, 2]: body z against world z
+    echo = cos_tilt >= math.cos(config.range_max_tilt_rad)
     # The sensor sits range_offset_m above the body origin's ground contact point, so a landed vehicle
     # reads the offset; in flight its beam (body -z) meets the ground after (height / cos tilt).
-    distance = max(float(p_WB_W[2]) - ground_height_m, 0.0) / cos_tilt + config.range_offset_m
-    if distance > config.range_max_m:
-        return math.inf
+    height = np.maximum(p_WB_W[:, 2] - ground_height_m, 0.0)
+    distance = np.divide(height, cos_tilt, out=np.full_like(height, math.inf), where=echo)
+    distance += config.range_offset_m
+    echo &= distance <= config.range_max_m
     if config.range_resolution_m > 0:
-        distance = config.range_resolution_m * round(distance / config.range_resolution_m)
-    return max(distance, config.range_min_m)
+        distance = config.range_resolution_m * np.round(distance / config.range_resolution_m)
+    return np.where(echo, np.maximum(distance, config.range_min_m), math.inf)
 
 
-def pose_reading(
-    config: SensorConfig, rng: np.random.Generator, p_WB_W: FloatArray, q_WB: FloatArray
+def pose_draws(config: SensorConfig) -> int:
+    """Standard normals per vehicle and motion-capture sample.
+
+    3 for the position, then 3 for the attitude when its noise is not zero.
+    """
+    return 6 if config.pose_angle_noise_rad > 0 else 3
+
+
+def pose_readings(
+    config: SensorConfig, p_WB_W: FloatArray, q_WB: FloatArray, z: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Motion-capture position (world ENU) and attitude (w, x, y, z) with white noise."""
-    p = p_WB_W + rng.normal(0.0, config.pose_position_noise_m, 3)
-    q = quat_multiply(q_WB, _small_rotation(rng, config.pose_angle_noise_rad))
-    return p, q / np.linalg.norm(q)
+    """Motion-capture positions (V, 3; world ENU) and attitudes (V, 4; w, x, y, z) with white noise.
+
+    ``z`` (V, :func:`pose_draws`): standard normals.
+    """
+    p = p_WB_W + config.pose_position_noise_m * z[:, 0:3]
+    rotate = config.pose_angle_noise_rad > 0
+    angles = config.pose_angle_noise_rad * z[:, 3:6] if rotate else np.zeros_like(p)
+    return p, _turned(q_WB, angles)
 
 
-def rotor_speed_reading(
-    config: SensorConfig, rng: np.random.Generator, omega_rad_s: FloatArray
-) -> FloatArray:
-    """Measured rotor speeds: the true speeds with white noise, never negative."""
-    noisy = omega_rad_s + rng.normal(0.0, config.rotor_speed_noise_rad_s, omega_rad_s.shape)
-    return np.maximum(noisy, 0.0)
+def rotor_speed_draws(n_rotors: int) -> int:
+    """Standard normals per vehicle and ESC report: one per rotor."""
+    return n_rotors
+
+
+def rotor_speed_readings(config: SensorConfig, omega_rad_s: FloatArray, z: FloatArray) -> FloatArray:
+    """(V, N) measured rotor speeds: the true speeds (V, N) with white noise, never negative.
+
+    ``z`` (V, N): standard normals.
+    """
+    return np.maximum(omega_rad_s + config.rotor_speed_noise_rad_s * z, 0.0)

@@ -1,4 +1,4 @@
-"""One simulated vehicle: model + integrator + sensors + command clamp, watchdog and fault injection.
+"""Simulated vehicles: model + integrator + sensors + command clamp, watchdog and fault injection.
 
 Pure Python and numpy (no ROS): the simulator node and the offline closed loop (flight.py) both drive
 a :class:`VehicleSimulator` the same way:
@@ -8,18 +8,44 @@ a :class:`VehicleSimulator` the same way:
     for reading in sim.run_until(t_ns):      # physics at physics_rate_hz, readings when they fall due
         ...                                  # reading.kind: odom, imu, pose, range, motor_speeds, watchdog
 
+A fleet is V vehicles of one airframe in one simulator, stepped together: each integrator call advances
+all of them (one lane of the compiled kernel per vehicle); one vehicle is the case V = 1 of the same
+code. V is the number of generators given, one per vehicle (:func:`vehicle_generators` makes them from
+one seed):
+
+    fleet = VehicleSimulator(airframe, rng=vehicle_generators(seed, 3),
+                             initial_position_m=[(0, 0, 0), (2, 0, 0), (4, 0, 0)],  # (3,) or (V, 3)
+                             initial_yaw_rad=[0.0, 0.0, 1.57])                       # scalar or (V,)
+    fleet.set_command(speeds_rad_s, vehicle=2)
+    fleet.inject_fault(motor=3, effectiveness=0.0, vehicle=1)
+    for reading in fleet.run_until(t_ns):    # reading.vehicle: which vehicle (0..V-1)
+        ...
+
+Per vehicle: its state ``x[k]`` (``x`` is (V, 13 + N)), its applied command ``commands_rad_s[k]``, its
+watchdog (``last_command_ns[k]``, ``watchdog_tripped[k]``), its injected fault, its generator
+``rngs[k]`` and its IMU bias. Shared: the airframe, the true effect list, time (one clock), the sensor
+configuration and rates (all vehicles' readings fall due together; within one time the readings come
+kind by kind, vehicle 0 first). Methods about one vehicle take ``vehicle=k`` (default 0; an index
+outside 0..V-1 is a ValueError); ``state`` and ``command_rad_s`` name the one vehicle of a simulator of
+V = 1 and refuse a fleet (use ``x[k]``, ``commands_rad_s[k]``).
+
+A vehicle's readings are the same, bit for bit, whether it flies alone (with the same generator) or in a
+fleet: the kernel computes each lane on its own, a vehicle draws its noise from its own generator in the
+same order, and the sensor models compute each vehicle with the same arithmetic whatever V is
+(sensors.py). The tests hold a fleet to that.
+
 Time is an integer number of nanoseconds (physics steps of ``dt_ns``), so that stamps never drift.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import Airframe
@@ -33,7 +59,7 @@ from multirotor_ros.model.effects import (
 )
 from multirotor_ros.model.integrator import Integrator
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import FloatArray, quat_to_matrix
+from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.simulation import sensors as sens
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
 
@@ -42,6 +68,8 @@ NS_PER_S = 1_000_000_000
 # rad/s) and refused by whoever reads it; between the top speed and this, set_command clamps it as an
 # ESC saturates.
 OVERSIZED_SPEED_FACTOR = 2.0
+# last_command_ns of a vehicle that was never commanded (its watchdog is not armed).
+NEVER = -1
 
 
 def _sets_rotor_lag(effect: Effect) -> bool:
@@ -54,18 +82,53 @@ def _is_scheduled(effect: Effect) -> bool:
     return any("t" in formula_arguments(formula) for formula in effect.formulas().values())
 
 
-@dataclass(frozen=True)
-class Reading:
-    """Something the simulator produced at time ``t_ns``.
+def vehicle_generators(seed: int | None, count: int) -> list[np.random.Generator]:
+    """``count`` independent generators from one seed (numpy ``SeedSequence.spawn``).
+
+    Vehicle k's generator is the k-th child of the seed whatever ``count`` is, so its noise does not
+    depend on the size of its fleet: ``vehicle_generators(s, 1)[0]`` is vehicle 0 of any fleet of seed s.
+    """
+    if count < 1:
+        raise ValueError(f"need at least one vehicle, got {count}")
+    return [np.random.default_rng(child) for child in np.random.SeedSequence(seed).spawn(count)]
+
+
+def _per_lane(lanes: Sequence[Sequence[Effect]], n_rotors: int) -> list[Effect]:
+    """Every lane's scheduled effects as one effect per id, its parameters (V,) arrays (row k: lane k).
+
+    The compiled kernel reads one parameter row per lane (``model.compiled.ParameterLayout`` packs a
+    (V,) parameter into that lane's row), and the numpy model broadcasts (V,) parameters over the batch,
+    so one model steps vehicles with different faults. A lane without the effect gets its neutral
+    parameters: for ``actuator_fault`` effectiveness 1, a thrust factor of exactly 1.0, which leaves that
+    lane's arithmetic bit for bit as without the effect.
+    """
+    merged: list[Effect] = []
+    for effect_id in dict.fromkeys(effect.id for lane in lanes for effect in lane):
+        found = [next((e for e in lane if e.id == effect_id), None) for lane in lanes]
+        given = next(e for e in found if e is not None)
+        neutral = type(given).neutral_parameters(n_rotors)
+        columns = {
+            name: np.array([neutral[name] if e is None else float(e[name]) for e in found])
+            for name in given.parameters
+        }
+        merged.append(type(given)(**columns))
+    return merged
+
+
+class Reading(NamedTuple):
+    """Something the simulator produced at time ``t_ns`` for vehicle ``vehicle`` (0 when alone).
 
     kind and data: ``odom`` the true flat state (13 + N,); ``imu`` an :class:`sensors.ImuReading`;
     ``pose`` (p_WB_W, q_WB); ``range`` distance [m] (+inf: no echo); ``motor_speeds`` measured (N,);
     ``watchdog`` the time [s] since the last command when the rotors were stopped for lack of commands.
+    A named tuple: immutable, and a fleet makes tens of thousands a second (a tuple is made in a third of
+    the time of a frozen dataclass).
     """
 
     kind: str
     t_ns: int
     data: Any
+    vehicle: int = 0
 
 
 @dataclass
@@ -80,14 +143,17 @@ def period_ns(rate_hz: float) -> int:
 
 
 class VehicleSimulator:
-    """The simulated vehicle; see the module docstring.
+    """One simulated vehicle, or a fleet of them stepped together; see the module docstring.
 
-    ``effects``: the true effect list (None = the airframe's own). ``motor_lag``: rotor speeds follow
-    their commands with the airframe's ``motor_time_constant_s`` and the ESC reports the true rotor speed
-    (when the effect list already holds ``motor_lag``, that hidden lag is kept and the report is the
-    speed the ESC was asked for, which is what effects.md's ``motor_lag`` describes). ``command_timeout_s``
-    (0 = no watchdog): without a command for that long the rotors are commanded to stop.
-    ``odom_rate_hz``: rate of the ``odom`` (truth) readings; the sensors have the rates of ``sensors``.
+    ``rng``: one generator (one vehicle) or a sequence of V generators (V vehicles, one each).
+    ``initial_position_m``: (3,) for every vehicle or (V, 3); ``initial_yaw_rad``: one or (V,).
+    ``effects``: the true effect list of every vehicle (None = the airframe's own). ``motor_lag``: rotor
+    speeds follow their commands with the airframe's ``motor_time_constant_s`` and the ESC reports the
+    true rotor speed (when the effect list already holds ``motor_lag``, that hidden lag is kept and the
+    report is the speed the ESC was asked for, which is what effects.md's ``motor_lag`` describes).
+    ``command_timeout_s`` (0 = no watchdog): a vehicle without a command for that long has its rotors
+    commanded to stop. ``odom_rate_hz``: rate of the ``odom`` (truth) readings; the sensors have the
+    rates of ``sensors``.
     """
 
     def __init__(
@@ -95,7 +161,7 @@ class VehicleSimulator:
         airframe: Airframe,
         effects: Iterable[Effect | Mapping[str, Any]] | None = None,
         *,
-        rng: np.random.Generator,
+        rng: np.random.Generator | Sequence[np.random.Generator],
         physics_rate_hz: float = 1000.0,
         odom_rate_hz: float = 250.0,
         motor_lag: bool = True,
@@ -103,18 +169,25 @@ class VehicleSimulator:
         sensors: SensorConfig | None = None,
         noise: bool = True,
         initial_position_m: ArrayLike = (0.0, 0.0, 0.0),
-        initial_yaw_rad: float = 0.0,
+        initial_yaw_rad: ArrayLike = 0.0,
         ground_height_m: float = 0.0,
     ):
         if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0):
             raise ValueError(f"physics_rate_hz must be > 0, got {physics_rate_hz}")
         if not (math.isfinite(command_timeout_s) and command_timeout_s >= 0):
             raise ValueError(f"command_timeout_s must be >= 0, got {command_timeout_s}")
+        self.rngs: list[np.random.Generator] = [rng] if isinstance(rng, np.random.Generator) else list(rng)
+        if not self.rngs:
+            raise ValueError("need at least one vehicle: rng is an empty sequence")
+        self.vehicles = len(self.rngs)
+        positions = self._per_vehicle("initial_position_m", initial_position_m, (3,))
+        yaws = self._per_vehicle("initial_yaw_rad", initial_yaw_rad, ())
         self.airframe = airframe
-        self.rng = rng
         self.dt_ns = period_ns(physics_rate_hz)
+        self._command_shape = (airframe.n_rotors,)
+        self._speed_range = (airframe.rotor_speed_min_rad_s, airframe.rotor_speed_max_rad_s)
         self.ground_height_m = ground_height_m
-        self.command_timeout_ns = round(command_timeout_s * NS_PER_S)
+        self._command_timeout_ns = round(command_timeout_s * NS_PER_S)
         config = sensors if sensors is not None else airframe_sensor_config(airframe)
         self.sensor_config = config if noise else config.without_noise()
 
@@ -127,31 +200,43 @@ class VehicleSimulator:
         if motor_lag and not self._hidden_lag:
             self.motor_lag_s = airframe.motor_time_constant_s
             given.append(MotorLag(tau_s=airframe.motor_time_constant_s))
-        # Scheduled effects are kept apart: inject_fault replaces them.
+        # Scheduled effects are kept apart, per vehicle: inject_fault replaces one vehicle's.
         self._base_effects = [e for e in given if not _is_scheduled(e)]
-        self._faults = [e for e in given if _is_scheduled(e)]
+        self._faults = [[e for e in given if _is_scheduled(e)] for _ in range(self.vehicles)]
         self._rebuild_model()
 
         self.t_ns = 0
-        position = np.asarray(initial_position_m, dtype=float)
-        airborne = position[2] > ground_height_m
+        n = airframe.n_rotors
+        airborne = positions[:, 2] > ground_height_m
         self.hover_speed_rad_s = self.model.hover_speed_rad_s()
-        start_speed = self.hover_speed_rad_s if airborne else 0.0
+        start_speed = np.where(airborne, self.hover_speed_rad_s, 0.0)
+        euler = np.zeros((self.vehicles, 3))
+        euler[:, 2] = yaws
         self.x = S.make_state(
-            airframe.n_rotors,
-            position_m=position,
-            euler_rad=(0.0, 0.0, initial_yaw_rad),
-            rotor_speed_rad_s=start_speed,
+            n, self.vehicles, position_m=positions, euler_rad=euler, rotor_speed_rad_s=start_speed[:, None]
         )
         # A vehicle placed in the air starts as if just commanded to hover, so it does not drop at once.
-        self.command_rad_s = np.full(airframe.n_rotors, start_speed)
-        self._last_command_ns: int | None = 0 if airborne else None
-        self.watchdog_tripped = False
-        self._acceleration_W = np.zeros(3)
-        self._imu = sens.Imu(self.sensor_config, rng, self.model.gravity_m_s2)
+        self.commands_rad_s: FloatArray = np.repeat(start_speed[:, None], n, axis=1)
+        self.last_command_ns: NDArray[np.int64] = np.where(airborne, 0, NEVER).astype(np.int64)
+        self.watchdog_tripped = np.zeros(self.vehicles, dtype=bool)
+        self._deadline_stale = True
+        self._deadline_ns: int | None = None
+        self._acceleration_W = np.zeros((self.vehicles, 3))
+        config = self.sensor_config
+        self._imu = sens.Imu(
+            config, sens.standard_normals(self.rngs, sens.Imu.INITIAL_DRAWS), self.model.gravity_m_s2
+        )
+        # Standard normals per vehicle and sample of each kind (sensors.py: the order each model uses them).
+        self._draws = {
+            "odom": 0,
+            "imu": sens.Imu.draws(config),
+            "pose": sens.pose_draws(config),
+            "range": 0,
+            "motor_speeds": sens.rotor_speed_draws(airframe.n_rotors),
+        }
         # One throw-away step loads (or compiles) the integrator's kernel now rather than in the first
         # paced step, which would otherwise start a real-time run far behind.
-        self.integrator.advance(0.0, self.x.copy(), self.command_rad_s[None, :], 1)
+        self.integrator.advance(0.0, self.x.copy(), self.commands_rad_s, 1)
         self._schedules = {
             "odom": _Schedule(period_ns(odom_rate_hz)),
             "imu": _Schedule(period_ns(self.sensor_config.imu_rate_hz)),
@@ -160,10 +245,21 @@ class VehicleSimulator:
             "motor_speeds": _Schedule(period_ns(self.sensor_config.rotor_speed_rate_hz)),
         }
 
+    def _per_vehicle(self, name: str, value: ArrayLike, shape: tuple[int, ...]) -> FloatArray:
+        """``value`` of one vehicle (``shape``) or of each, as (V, *shape)."""
+        array = np.asarray(value, dtype=float)
+        if array.shape not in (shape, (self.vehicles, *shape)):
+            raise ValueError(
+                f"{name}: expected shape {shape} or {(self.vehicles, *shape)} for {self.vehicles} "
+                f"vehicle(s) (one generator each), got {array.shape}"
+            )
+        return np.broadcast_to(array, (self.vehicles, *shape))
+
     # ------------------------------------------------------------------ model
 
     def _rebuild_model(self) -> None:
-        self.model = Model(self.airframe, self._base_effects + self._faults)
+        effects = self._base_effects + _per_lane(self._faults, self.airframe.n_rotors)
+        self.model = Model(self.airframe, effects)
         self.integrator = Integrator(self.model, self.dt_ns / NS_PER_S, ground_height_m=self.ground_height_m)
 
     @property
@@ -171,49 +267,91 @@ class VehicleSimulator:
         """Simulated time [s]."""
         return self.t_ns / NS_PER_S
 
+    def _vehicle(self, vehicle: int) -> int:
+        """``vehicle`` checked as an index 0..V-1."""
+        if isinstance(vehicle, bool) or not isinstance(vehicle, int | np.integer):
+            raise ValueError(f"vehicle must be an integer index 0..{self.vehicles - 1}, got {vehicle!r}")
+        if not 0 <= vehicle < self.vehicles:
+            raise ValueError(
+                f"vehicle {vehicle} does not exist: this simulator has {self.vehicles} "
+                f"(indices 0..{self.vehicles - 1})"
+            )
+        return int(vehicle)
+
+    def _alone(self, name: str, fleet_name: str) -> int:
+        """0 for a single vehicle; a fleet has no single ``name``."""
+        if self.vehicles != 1:
+            raise ValueError(
+                f"{name} is a single vehicle's: this fleet has {self.vehicles}, use {fleet_name}"
+            )
+        return 0
+
     @property
     def state(self) -> FloatArray:
-        """The true flat state (13 + N,) (a view: do not modify)."""
-        return self.x[0]
+        """The true flat state (13 + N,) of the single vehicle (a view: do not modify); fleet: ``x[k]``."""
+        return self.x[self._alone("state", "x[k]")]
+
+    @property
+    def command_rad_s(self) -> FloatArray:
+        """The single vehicle's applied command (N,) [rad/s]; fleet: ``commands_rad_s[k]``."""
+        return self.commands_rad_s[self._alone("command_rad_s", "commands_rad_s[k]")]
+
+    @property
+    def command_timeout_ns(self) -> int:
+        """The watchdog's timeout [ns] (0: no watchdog), the same for every vehicle; may be changed."""
+        return self._command_timeout_ns
+
+    @command_timeout_ns.setter
+    def command_timeout_ns(self, value: int) -> None:
+        if value < 0:
+            raise ValueError(f"command_timeout_ns must be >= 0, got {value}")
+        self._command_timeout_ns = int(value)
+        self._deadline_stale = True
 
     # ------------------------------------------------------------------ inputs
 
-    def set_command(self, speeds_rad_s: ArrayLike) -> FloatArray:
-        """Take rotor speed commands [rad/s], clamped to the airframe's range; returns what was applied.
+    def set_command(self, speeds_rad_s: ArrayLike, vehicle: int = 0) -> FloatArray:
+        """Take a vehicle's rotor speed commands [rad/s], clamped to the airframe's range; returns them.
 
         Callers validate first (finite, N values): this raises ValueError on anything else.
         """
+        k = self._vehicle(vehicle)
         speeds = np.asarray(speeds_rad_s, dtype=float)
-        if speeds.shape != (self.airframe.n_rotors,) or not np.all(np.isfinite(speeds)):
+        if speeds.shape != self._command_shape or not np.isfinite(speeds).all():
             raise ValueError(f"need {self.airframe.n_rotors} finite rotor speeds, got {speeds}")
-        self.command_rad_s = np.clip(
-            speeds, self.airframe.rotor_speed_min_rad_s, self.airframe.rotor_speed_max_rad_s
-        )
-        self._last_command_ns = self.t_ns
-        self.watchdog_tripped = False
-        return self.command_rad_s
+        # np.clip's own arithmetic, without its Python wrappers (a fleet takes V commands per period).
+        applied = self.commands_rad_s[k]
+        np.minimum(np.maximum(speeds, self._speed_range[0]), self._speed_range[1], out=applied)
+        self.last_command_ns[k] = self.t_ns
+        self.watchdog_tripped[k] = False
+        self._deadline_stale = True
+        return applied
 
-    def inject_fault(self, motor: int, effectiveness: float) -> None:
-        """From now on rotor ``motor`` (1..N) gives ``effectiveness`` (0..1) of its thrust; 0 = repaired.
+    def inject_fault(self, motor: int, effectiveness: float, vehicle: int = 0) -> None:
+        """From now on a vehicle's rotor ``motor`` (1..N) gives ``effectiveness`` (0..1) of its thrust.
 
-        This replaces any earlier fault, a hidden one of the effect list (``actuator_fault``) included.
+        ``motor`` 0 repairs the vehicle. This replaces any earlier fault of that vehicle, a hidden one of
+        the effect list (``actuator_fault``) included; the other vehicles keep theirs.
         """
+        k = self._vehicle(vehicle)
         if not 0 <= motor <= self.airframe.n_rotors:
             raise ValueError(f"fault motor must be 0 (none) or 1..{self.airframe.n_rotors}, got {motor}")
         if not 0.0 <= effectiveness <= 1.0:
             raise ValueError(f"fault effectiveness must be in [0, 1], got {effectiveness}")
-        self._faults = (
+        self._faults[k] = (
             []
             if motor == 0
             else [ActuatorFault(motor=motor, effectiveness=effectiveness, t_fault_s=self.t_s)]
         )
         self._rebuild_model()
 
-    def injected_effectiveness(self) -> FloatArray:
-        """(N,) effectiveness applied to each rotor now: the truth of the injected (or hidden) fault."""
-        context = self.model.context(S.StateBatch.from_flat(self.t_s, self.x, self.x[:, S.ROTORS_START :]))
+    def injected_effectiveness(self, vehicle: int = 0) -> FloatArray:
+        """(N,) effectiveness applied to each rotor of a vehicle now: its injected (or hidden) fault."""
+        k = self._vehicle(vehicle)
+        x = self.x[k : k + 1]
+        context = self.model.context(S.StateBatch.from_flat(self.t_s, x, x[:, S.ROTORS_START :]))
         result = np.ones(self.airframe.n_rotors)
-        for fault in self._faults:
+        for fault in self._faults[k]:
             if "rotor_thrust_factor" in fault.formulas():
                 result = result * evaluate(fault, "rotor_thrust_factor", context)[0]
         return result
@@ -235,61 +373,91 @@ class VehicleSimulator:
             self._sample_due(readings)
         return readings
 
+    def _armed(self) -> NDArray[np.bool_]:
+        """(V,) whose watchdog runs: commanded, not tripped since, a timeout set."""
+        return (self.last_command_ns != NEVER) & ~self.watchdog_tripped & (self._command_timeout_ns > 0)
+
     def _watchdog_deadline(self) -> int | None:
-        if self.command_timeout_ns == 0 or self._last_command_ns is None or self.watchdog_tripped:
-            return None
-        return self._last_command_ns + self.command_timeout_ns
+        """The earliest time a watchdog trips (None: none runs); recomputed only after a change."""
+        if self._deadline_stale:
+            armed = self._armed()
+            self._deadline_ns = (
+                int(self.last_command_ns[armed].min()) + self._command_timeout_ns if armed.any() else None
+            )
+            self._deadline_stale = False
+        return self._deadline_ns
 
     def _check_watchdog(self, readings: list[Reading]) -> None:
         deadline = self._watchdog_deadline()
-        if deadline is not None and self.t_ns >= deadline:
-            self.watchdog_tripped = True
-            self.command_rad_s = np.full(self.airframe.n_rotors, self.airframe.rotor_speed_min_rad_s)
-            last_command_ns = deadline - self.command_timeout_ns
-            readings.append(Reading("watchdog", self.t_ns, (self.t_ns - last_command_ns) / NS_PER_S))
+        if deadline is None or self.t_ns < deadline:
+            return
+        due = self._armed() & (self.last_command_ns + self._command_timeout_ns <= self.t_ns)
+        for k in np.flatnonzero(due).tolist():
+            self.watchdog_tripped[k] = True
+            self.commands_rad_s[k] = self.airframe.rotor_speed_min_rad_s
+            silence_s = (self.t_ns - int(self.last_command_ns[k])) / NS_PER_S
+            readings.append(Reading("watchdog", self.t_ns, silence_s, k))
+        self._deadline_stale = True
 
     def _sample_due(self, readings: list[Reading]) -> None:
-        for kind, schedule in self._schedules.items():
-            if self.t_ns >= schedule.next_ns:
-                readings.append(Reading(kind, self.t_ns, self.sample(kind)))
-                # Next due time on the schedule's own grid, skipping any it has missed.
-                missed = (self.t_ns - schedule.next_ns) // schedule.period_ns
-                schedule.next_ns += (missed + 1) * schedule.period_ns
+        t_ns = self.t_ns
+        due = [kind for kind, schedule in self._schedules.items() if t_ns >= schedule.next_ns]
+        if not due:
+            return
+        # One draw per vehicle for every kind due now, used kind after kind in the schedules' order: the
+        # same numbers, in the same order, as drawing kind by kind.
+        z = sens.standard_normals(self.rngs, sum(self._draws[kind] for kind in due))
+        column = 0
+        for kind in due:
+            count = self._draws[kind]
+            data = self._sample(kind, z[:, column : column + count])
+            column += count
+            readings.extend([Reading(kind, t_ns, value, k) for k, value in enumerate(data)])
+            # Next due time on the schedule's own grid, skipping any it has missed.
+            schedule = self._schedules[kind]
+            schedule.next_ns += ((t_ns - schedule.next_ns) // schedule.period_ns + 1) * schedule.period_ns
 
     def _advance(self, steps: int, imu_due: bool) -> None:
-        command = self.command_rad_s[None, :]
+        command = self.commands_rad_s
         if imu_due:
             # The IMU needs the acceleration: the last step is taken alone, and its velocity change over dt
             # is the mean acceleration of that step (exact for RK4's update, ground reaction included).
             if steps > 1:
                 self.x = self.integrator.advance(self.t_s, self.x, command, steps - 1)
                 self.t_ns += (steps - 1) * self.dt_ns
-            v_before = self.x[0, S.VELOCITY].copy()
+            v_before = self.x[:, S.VELOCITY].copy()
             self.x = self.integrator.advance(self.t_s, self.x, command, 1)
             self.t_ns += self.dt_ns
-            self._acceleration_W = (self.x[0, S.VELOCITY] - v_before) / (self.dt_ns / NS_PER_S)
+            self._acceleration_W = (self.x[:, S.VELOCITY] - v_before) / (self.dt_ns / NS_PER_S)
         else:
             self.x = self.integrator.advance(self.t_s, self.x, command, steps)
             self.t_ns += steps * self.dt_ns
 
-    def acceleration_W(self) -> FloatArray:
-        """True acceleration [m/s^2] in world ENU (dv/dt, gravity not included) over the last IMU step."""
-        return self._acceleration_W.copy()
+    def acceleration_W(self, vehicle: int = 0) -> FloatArray:
+        """A vehicle's true acceleration [m/s^2], world ENU (dv/dt, no gravity), over the last IMU step."""
+        return self._acceleration_W[self._vehicle(vehicle)].copy()
 
-    def sample(self, kind: str) -> Any:
-        """A reading of one kind at the current time (draws noise from the generator)."""
-        state = self.x[0]
+    def sample(self, kind: str) -> list[Any]:
+        """One reading of ``kind`` per vehicle at the current time (draws noise from each one's generator)."""
+        if kind not in self._draws:
+            raise ValueError(f"unknown reading kind {kind!r}")
+        return self._sample(kind, sens.standard_normals(self.rngs, self._draws[kind]))
+
+    def _sample(self, kind: str, z: FloatArray) -> list[Any]:
+        """One reading of ``kind`` per vehicle, its noise from the standard normals ``z`` (V, draws)."""
+        x = self.x
         config = self.sensor_config
         if kind == "odom":
-            return state.copy()
+            return list(x.copy())
         if kind == "imu":
-            return self._imu.sample(self.t_s, state[S.QUATERNION], self.acceleration_W(), state[S.BODY_RATE])
+            return self._imu.sample(self.t_s, x[:, S.QUATERNION], self._acceleration_W, x[:, S.BODY_RATE], z)
         if kind == "pose":
-            return sens.pose_reading(config, self.rng, state[S.POSITION], state[S.QUATERNION])
+            positions, attitudes = sens.pose_readings(config, x[:, S.POSITION], x[:, S.QUATERNION], z)
+            return list(zip(positions, attitudes, strict=True))
         if kind == "range":
-            R = quat_to_matrix(state[S.QUATERNION])
-            return sens.range_reading(config, self.rng, state[S.POSITION], R, self.ground_height_m)
-        if kind == "motor_speeds":
-            speeds = self.command_rad_s if self._hidden_lag else state[S.ROTORS_START :]
-            return sens.rotor_speed_reading(config, self.rng, np.asarray(speeds, dtype=float))
-        raise ValueError(f"unknown reading kind {kind!r}")
+            distances = sens.range_readings(
+                config, x[:, S.POSITION], x[:, S.QUATERNION], self.ground_height_m
+            )
+            return list(distances.tolist())
+        speeds = self.commands_rad_s if self._hidden_lag else x[:, S.ROTORS_START :]
+        return list(sens.rotor_speed_readings(config, speeds, z))

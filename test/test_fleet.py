@@ -1,0 +1,93 @@
+"""Several vehicles in one simulator node, one clock, a controller each, over real ROS 2 (issue 10).
+
+The simulator steps every vehicle of its ``vehicles`` list in one batched kernel call and publishes one
+``/clock``; each vehicle has its own topics and frames under its name, and its own fault parameters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from ros_harness import NodeProcess, RosProbe
+from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
+
+from multirotor_ros.nodes.messages import stamp_from_ns
+from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
+from multirotor_ros.simulation.pacing import NS_PER_S
+
+# name, initial pose, target (x, y, z) reached at t = 1 s
+FLEET = {
+    "uav1": ("uav1", (0.0, 0.5, 1.0)),
+    "uav2": ("uav2 3 0 0", (3.0, 0.0, 1.5)),
+    "uav3": ("uav3 0 3 0 1.57", (-1.0, 3.0, 1.2)),
+}
+
+
+def test_vehicle_entries_are_parsed_and_bad_ones_named() -> None:
+    assert parse_vehicles(["uav1", "uav2 3 0 0", "b 1 2 0.5 0.3"]) == [
+        VehicleSpec("uav1"),
+        VehicleSpec("uav2", (3.0, 0.0, 0.0)),
+        VehicleSpec("b", (1.0, 2.0, 0.5), 0.3),
+    ]
+    for entries, reason in [
+        (["1uav"], "must start with a name"),
+        (["uav1 1 2"], "got 3 fields"),
+        (["uav1 1 2 x"], "must be numbers"),
+        (["uav1 1 2 nan"], "must be finite"),
+        (["uav1 0 0 -1"], "z >= 0"),
+        (["uav1", "uav1 1 0 0"], "already a vehicle"),
+        ([""], "must start with a name"),
+    ]:
+        with pytest.raises(ValueError, match=reason) as error:
+            parse_vehicles(entries)
+        assert f"vehicles[{len(entries) - 1}]" in str(error.value)
+
+
+@pytest.mark.ros
+def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path) -> None:
+    probe = RosProbe()
+    odom = {name: probe.subscribe(f"/{name}/odom", Odometry, qos=1000) for name in FLEET}
+    faults = probe.subscribe("/uav2/injected_faults", DiagnosticArray)
+    simulator = NodeProcess(
+        "simulator",
+        tmp_path / "simulator.log",
+        parameters={
+            "real_time_factor": 0.0,
+            "publish_clock": True,
+            "vehicles": [entry for entry, _ in FLEET.values()],
+        },
+    )
+    controllers = [
+        NodeProcess(
+            "controller", tmp_path / f"{name}.log", namespace=f"/{name}", parameters={"use_sim_time": True}
+        )
+        for name in FLEET
+    ]
+    try:
+        for name, (_, target) in FLEET.items():
+            setpoints = probe.publisher(f"/{name}/setpoint", type(setpoint_message(0, 0, 0)))
+            probe.wait_for_subscribers(setpoints, timeout=STARTUP_TIMEOUT_S)
+            message = setpoint_message(*target)
+            message.header.frame_id = f"{name}/odom"  # the vehicle's own frame, as its odometry says
+            message.header.stamp = stamp_from_ns(NS_PER_S)
+            setpoints.publish(message)
+        for name, (_, target) in FLEET.items():
+            arrived = odom[name].wait_for(lambda m: stamp_s(m) >= 8.0, timeout=300.0)
+            final = arrived[-1]
+            assert final.header.frame_id == f"{name}/odom" and final.child_frame_id == f"{name}/base_link"
+            assert np.linalg.norm(position(final) - target) < 0.05, name
+        # One time line: every vehicle's odometry has the same stamps.
+        stamps = [{stamp_s(m) for m in odom[name].messages if 2.0 <= stamp_s(m) <= 6.0} for name in FLEET]
+        assert stamps[0] == stamps[1] == stamps[2]
+        (outcome,) = probe.set_parameters("/simulator", {"uav2.fault_motor": 3}).values()
+        assert outcome.successful
+        truth = faults.wait_for(lambda m: m.status[2].values[0].value == "0", timeout=30.0)[-1]
+        assert [s.values[0].value for s in truth.status] == ["1", "1", "0", "1", "1", "1", "1", "1"]
+        log = simulator.log_text()
+        assert "3 vehicles (uav1, uav2, uav3)" in log and "uav2/rotor 3 effectiveness 0" in log
+    finally:
+        for process in [*controllers, simulator]:
+            process.stop()
+        probe.close()
