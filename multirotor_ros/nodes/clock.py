@@ -5,6 +5,8 @@ from __future__ import annotations
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+# The graph's one clock, whatever the publisher's namespace (rclpy's time source listens on /clock).
+GRAPH_CLOCK_TOPIC = "/clock"
 # As rclpy's time source subscribes to ``clock``: only the newest time matters.
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 

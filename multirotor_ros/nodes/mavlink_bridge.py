@@ -53,7 +53,7 @@ from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
 from multirotor_ros.mavlink.vehicle import VehicleState
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, euler_to_quat
-from multirotor_ros.nodes.clock import CLOCK_QOS
+from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     imu_from_message,
@@ -316,7 +316,7 @@ class MavlinkBridgeNode(Node):
             self.imu_publisher = self.create_publisher(Imu, "imu", qos_profile_sensor_data)
             self.speeds_publisher = self.create_publisher(JointState, "motor_speeds", qos)
             self.clock_publisher = (
-                self.create_publisher(Clock, "clock", CLOCK_QOS) if self.publish_clock else None
+                self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if self.publish_clock else None
             )
         else:
             self._odom: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None

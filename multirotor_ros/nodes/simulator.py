@@ -69,7 +69,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Range
 
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.clock import CLOCK_QOS, steady_clock
+from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
@@ -96,8 +96,6 @@ from multirotor_ros.simulation.vehicle import (
 
 # Wall time a free-running (real_time_factor 0, no lockstep) simulator computes before serving callbacks.
 FREE_RUN_SLICE_S = 0.005
-# The graph's one clock, whatever the node's namespace (the ROS convention for simulated time).
-GRAPH_CLOCK_TOPIC = "/clock"
 # Wall time to discover other clock publishers before this simulator publishes its own.
 CLOCK_CHECK_S = 1.0
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
