@@ -214,6 +214,7 @@ class ControllerNode(Node):
         self._target: tuple[FloatArray, float] | None = None
         self._scheduled = SetpointQueue()
         self._state_for_tick = StateForTick()
+        self._clock_is_simulated = bool(self.get_parameter("use_sim_time").value)
         self._odom_frame = ""
         self._stale = False
         self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
@@ -250,7 +251,7 @@ class ControllerNode(Node):
         self._odom_frame = message.header.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
-        if self._on_sim_time():
+        if self._clock_is_simulated:
             waiting_tick_ns = self._state_for_tick.state(stamp_to_ns(message.header.stamp))
             if waiting_tick_ns is not None:
                 self._control(waiting_tick_ns)
@@ -324,12 +325,9 @@ class ControllerNode(Node):
 
     def _on_timer(self) -> None:
         now_ns = self.get_clock().now().nanoseconds
-        if self._on_sim_time() and not self._state_for_tick.tick(now_ns):
+        if self._clock_is_simulated and not self._state_for_tick.tick(now_ns):
             return  # the odometry of this tick is on its way: computed when it arrives
         self._control(now_ns)
-
-    def _on_sim_time(self) -> bool:
-        return bool(self.get_parameter("use_sim_time").value)
 
     def _control(self, now_ns: int) -> None:
         """The law at ``now_ns`` (this node's clock) on the newest state; publishes its command."""
@@ -375,6 +373,9 @@ class ControllerNode(Node):
                     "fault-tolerant allocation "
                     + ("on: allocating with rotor_effectiveness" if self._fault_tolerant else "off: nominal")
                 )
+            if parameter.name == "use_sim_time":
+                self._clock_is_simulated = bool(parameter.value)
+                self._state_for_tick = StateForTick()
             if parameter.name == "odom_timeout_s":
                 self._odom_timeout_ns = round(float(parameter.value) * 1e9)
                 self._odometry_check.forget_after_ns = self._odom_timeout_ns
