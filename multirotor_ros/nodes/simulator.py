@@ -96,8 +96,9 @@ from multirotor_ros.simulation.vehicle import (
 
 # Wall time a free-running (real_time_factor 0, no lockstep) simulator computes before serving callbacks.
 FREE_RUN_SLICE_S = 0.005
-# Wall time to discover other clock publishers before this simulator publishes its own.
-CLOCK_CHECK_S = 1.0
+# Wall time to discover other clock publishers before this simulator publishes its own (discovery on a
+# loaded machine was seen to take over a second).
+CLOCK_CHECK_S = 2.0
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
 # STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
 RESEND_PERIOD_S = 0.25
