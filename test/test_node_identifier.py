@@ -301,7 +301,6 @@ def test_a_fault_set_with_ros2_param_set_is_named_on_diagnostics(
             # The nominal allocation: this test is about naming the fault, test_fault_tolerant_flight.py
             # about flying with it (reallocation takes the stopped rotor's signature out of the residual).
             parameters={"use_sim_time": True, "fault_tolerant_allocation": False},
-            remaps={"/clock": "/e2e/clock"},
         ),
         NodeProcess(
             "identifier", tmp_path / "identifier.log", **common, parameters={"input": source}
