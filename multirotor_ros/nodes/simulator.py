@@ -31,9 +31,9 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   cannot keep up. Without ``publish_clock`` (only at r = 1) stamps follow the wall clock: when the physics
   falls behind, the stamps jump forward with the wall clock rather than drifting behind it.
 - Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
-  node's namespace: a graph has one time. A simulator that finds another node publishing ``/clock``
-  when it starts refuses to run (status 2) before publishing anything; one that finds a second clock
-  appear later says so at ERROR. Several vehicles share one simulator node and its clock.
+  node's namespace: a graph has one time. A simulator that hears another clock in its first
+  ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers.
+  Several vehicles share one simulator node and its clock.
 - ``pacing`` (diagnostic_msgs/DiagnosticArray, 1 Hz wall): one status ``simulator pacing`` with the
   target and achieved real-time factors, control periods on time and late, commands, lockstep waits.
 
@@ -343,7 +343,6 @@ class SimulatorNode(Node):
         # Without a clock, stamps are the wall clock: simulated time + this offset, set by the pacing anchor.
         self._stamp_offset_ns = 0
         self._started = False
-        self._other_clocks_reported = False
         self._stall: _Stall | None = None
         self.lockstep_stalls = 0
         self._last_resend_s = -math.inf
@@ -364,7 +363,11 @@ class SimulatorNode(Node):
         self.create_timer(1.0, self._publish_faults, clock=wall)
         self.create_timer(STATUS_PERIOD_S, self._publish_status, clock=wall)
         if clock_on:
-            # Discovery needs a moment: look for another clock before publishing one.
+            # Listen for another clock (discovery needs a moment) before publishing one.
+            self._clock_heard = 0
+            self._clock_listener = self.create_subscription(
+                Clock, GRAPH_CLOCK_TOPIC, self._hear_clock, CLOCK_QOS
+            )
             self._clock_watch = self.create_timer(CLOCK_CHECK_S, self._watch_clocks, clock=wall)
         else:
             self._start()
@@ -392,6 +395,9 @@ class SimulatorNode(Node):
         if self._lockstep is not None:
             self._run_to(self._lockstep.limit_ns())
 
+    def _hear_clock(self, _: Clock) -> None:
+        self._clock_heard += 1
+
     def _publisher_names(self, topic: str) -> list[str]:
         return sorted(
             f"{info.node_namespace.rstrip('/')}/{info.node_name}"
@@ -399,25 +405,27 @@ class SimulatorNode(Node):
         )
 
     def _watch_clocks(self) -> None:
-        """First call: refuse to start beside another clock, else start. Later: report a second clock."""
-        others = self._publisher_names(GRAPH_CLOCK_TOPIC)
-        if self.get_fully_qualified_name() in others:
-            others.remove(self.get_fully_qualified_name())
-        if not self._started:
-            if others:
-                self.get_logger().error(
-                    f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others)}): a graph has "
-                    "one simulated time, so this simulator does not start. Fly several vehicles in one "
-                    "simulator node (parameter vehicles), or give each simulator a ROS_DOMAIN_ID of its own"
-                )
-                raise SystemExit(2)
-            self._start()
-        elif others and not self._other_clocks_reported:
-            self._other_clocks_reported = True
+        """Start, unless another node's clock was heard: then refuse to run (module docstring).
+
+        Heard, not merely listed in the graph: a simulator that just stopped stays listed for a while
+        (discovery forgets it late) but publishes nothing, and a restart must not be refused because of it.
+        """
+        self._clock_watch.cancel()
+        heard, self._clock_heard = self._clock_heard, 0
+        self.destroy_subscription(self._clock_listener)
+        if heard:
+            others = [
+                name
+                for name in self._publisher_names(GRAPH_CLOCK_TOPIC)
+                if name != self.get_fully_qualified_name()
+            ]
             self.get_logger().error(
-                f"a second node publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others)}): use_sim_time nodes now "
-                "follow two clocks and jump between them; stop one of the simulators"
+                f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others) or 'unknown'}): a "
+                "graph has one simulated time, so this simulator does not start. Fly several vehicles in one "
+                "simulator node (parameter vehicles), or give each simulator a ROS_DOMAIN_ID of its own"
             )
+            raise SystemExit(2)
+        self._start()
 
     # ------------------------------------------------------------------ inputs
 
