@@ -74,8 +74,10 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
             except (KeyboardInterrupt, ExternalShutdownException):
                 pass
             except Exception:
-                # A signal can shut the context down while a callback is publishing; a normal end too.
-                if context.ok():
+                # A signal can shut the context down while a callback is publishing or the executor is
+                # taking a message (rclpy then fails in the middleware, seen as "Unable to convert call
+                # argument"), and the error can surface a moment before the context reads as shut down.
+                if not _shutting_down(context):
                     raise
             finally:
                 if node is not None:
@@ -83,6 +85,20 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
     finally:
         finished.set()
     return 0
+
+
+# How long an error in the spin waits for a shutdown that may have caused it [s].
+SHUTDOWN_RACE_S = 0.5
+
+
+def _shutting_down(context: Context) -> bool:
+    """Whether the context is shut down now or within ``SHUTDOWN_RACE_S`` (a signal being handled)."""
+    deadline = time.monotonic() + SHUTDOWN_RACE_S
+    while context.ok():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def _stacks_on_sigusr1() -> None:
