@@ -222,16 +222,15 @@ def test_the_range_sensor_reads_height_plus_its_mount_offset() -> None:
     np.testing.assert_allclose(range_readings(exact, heights, level), [1.1, 2.1, math.inf])
 
 
+# Readings of one X8 in [0, 1 s] at its rates, both ends included; the range at 15 Hz has no 16th (it
+# would fall at 1.000000005 s).
+READINGS_IN_THE_FIRST_SECOND = {"odom": 251, "imu": 101, "pose": 101, "motor_speeds": 101, "range": 15}
+
+
 def test_readings_come_at_their_rates(x8) -> None:
     sim = make_sim(x8)
     kinds = [r.kind for r in sim.run_until(NS_PER_S)]
-    assert {kind: kinds.count(kind) for kind in set(kinds)} == {
-        "odom": 251,
-        "imu": 101,
-        "pose": 101,
-        "motor_speeds": 101,
-        "range": 15,
-    }  # 15 Hz: the 16th is at 1.000000005 s
+    assert {kind: kinds.count(kind) for kind in set(kinds)} == READINGS_IN_THE_FIRST_SECOND
 
 
 def test_the_same_generator_state_gives_the_same_readings(x8) -> None:
@@ -394,13 +393,7 @@ def test_a_fleet_reads_every_vehicle_at_the_same_times(x8) -> None:
     readings = fleet.run_until(NS_PER_S)
     for k in range(3):
         kinds = [r.kind for r in readings if r.vehicle == k]
-        assert {kind: kinds.count(kind) for kind in set(kinds)} == {
-            "odom": 251,
-            "imu": 101,
-            "pose": 101,
-            "motor_speeds": 101,
-            "range": 15,
-        }
+        assert {kind: kinds.count(kind) for kind in set(kinds)} == READINGS_IN_THE_FIRST_SECOND
     # Within one time, kind after kind, vehicle 0 first.
     first = [(r.kind, r.vehicle) for r in readings if r.t_ns == 0]
     assert first[:6] == [("odom", 0), ("odom", 1), ("odom", 2), ("imu", 0), ("imu", 1), ("imu", 2)]
