@@ -114,30 +114,41 @@ def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatA
     odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
     setpoints = probe.publisher(f"{namespace}/setpoint", type(setpoint_message(0, 0, 0)), qos=100)
     name = namespace.strip("/")
-    simulator = NodeProcess(
-        "simulator",
-        directory / f"{name}-simulator.log",
-        namespace=namespace,
-        parameters={"real_time_factor": 0.0, "publish_clock": True, "seed": SEED},
-    )
+    # The controller starts first: without a clock it does nothing, so every setpoint is scheduled before
+    # simulated time begins, however slow discovery is on a loaded machine (started together, the flight
+    # had reached 1.5 s before the setpoints got through, and the recorder had missed that much odometry).
     controller = NodeProcess(
         "controller",
         directory / f"{name}-controller.log",
         namespace=namespace,
         parameters={"use_sim_time": True},
     )
+    simulator = None
     try:
         probe.wait_for_subscribers(setpoints, timeout=STARTUP_TIMEOUT_S)
-        for t, x, y, z, yaw in STEPS:
-            message = setpoint_message(x, y, z, yaw)
-            message.header.stamp = stamp_from_ns(round(t * NS_PER_S))
-            setpoints.publish(message)
+        # Reliable delivery covers a subscriber the publisher has matched; a repeat costs nothing (a
+        # setpoint stamped like one already waiting changes nothing).
+        for _ in range(2):
+            for t, x, y, z, yaw in STEPS:
+                message = setpoint_message(x, y, z, yaw)
+                message.header.stamp = stamp_from_ns(round(t * NS_PER_S))
+                setpoints.publish(message)
+            time.sleep(0.2)
+        # The recorder is subscribed before the simulator exists; the simulator's first 2 s (listening for
+        # another clock) give discovery the time to match it before simulated time starts.
+        simulator = NodeProcess(
+            "simulator",
+            directory / f"{name}-simulator.log",
+            namespace=namespace,
+            parameters={"real_time_factor": 0.0, "publish_clock": True, "seed": SEED},
+        )
         odom.wait_for(lambda m: stamp_s(m) >= FLIGHT_S, timeout=900.0)
         for process in (simulator, controller):
             process.assert_running()
     finally:
         controller.stop()
-        simulator.stop()
+        if simulator is not None:
+            simulator.stop()
     return {round(stamp_s(m) * NS_PER_S): position(m) for m in odom.messages}
 
 
