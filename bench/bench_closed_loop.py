@@ -1,51 +1,95 @@
-"""Closed loop over ROS 2 across two processes, and the ceiling rclpy itself sets on this machine.
+"""Closed loop over ROS 2 across two processes, the ceiling rclpy itself sets, and the loop in real time.
 
-    .venv/bin/python bench/bench_closed_loop.py [--seconds 10] [--airframe x8_octorotor]
+    .venv/bin/python bench/bench_closed_loop.py [--seconds 10] [--rounds 1] [--realtime-seconds 30]
+        [--executors events,single] [--airframe x8_octorotor] [--profile DIR] [--skip-ceiling]
 
-1. Closed loop: ``multirotor node simulator`` (1 kHz physics, real_time_factor 0, lockstep, clock) and
-   ``multirotor node controller`` (250 Hz, use_sim_time) hovering the vehicle. Reported: simulated seconds
-   per wall second, and the latency from a motor command to the next state that reflects it: the wall
-   time between a probe receiving ``motor_speed_cmd`` stamped t and receiving the ``odom`` stamped
-   t + 4 ms (in lockstep the command holds from t on, so that odometry is the first to reflect it).
+1. Lockstep: ``multirotor node simulator`` (1 kHz physics, real_time_factor 0, lockstep, clock) and
+   ``multirotor node controller`` (250 Hz, use_sim_time) hovering the vehicle, once per executor the
+   nodes can spin with (``MULTIROTOR_ROS_EXECUTOR``, nodes/entry.py). Reported: simulated seconds per
+   wall second and control periods per second; the latency from a motor command to the next state that
+   reflects it (the wall time between the probe receiving ``motor_speed_cmd`` stamped t and receiving
+   ``odom`` stamped t + 4 ms); the CPU time each node process spends per control period (all its threads,
+   from /proc: what the loop costs, whatever else the machine runs).
 2. Ceiling: two bare rclpy processes exchanging the same messages (Odometry one way, an 8-rotor
-   JointState back) in ping-pong, with no physics and no control: round trips per second, i.e. the most
-   4 ms control periods rclpy could carry per second; and the one-way Odometry rate of a publisher that
-   publishes as fast as it can.
+   JointState back) in ping-pong, each answering in its subscription callback, with no physics and no
+   control: round trips per second, i.e. the most 4 ms control periods rclpy could carry per second; once
+   with the SingleThreadedExecutor and once with the EventsExecutor (spun as nodes/entry.py spins it).
+   The loop is compared with the best of the two.
+3. Real time (``--realtime-seconds``, 0 to skip): the simulator at real_time_factor 1 with its clock and the
+   controller on use_sim_time, default executor. Reported from the simulator's own ``pacing`` status
+   (simulation/pacing.py ControlTiming): the share of control periods on time, i.e. whose command
+   (stamped at the period's start) was in force before the physics passed the period's end, and the
+   achieved real-time factor; and the resident memory (VmRSS) of both node processes after the warm-up,
+   at the end, and its growth and trend (least squares, MB/min) over the second half (what a leak shows).
 
-Every process runs in a ROS domain of its own choosing (random, localhost only), so the numbers are not
-mixed with other traffic. The machine's load is printed with them: they are wall-clock numbers.
+``--profile DIR`` runs the lockstep nodes with ``MULTIROTOR_ROS_PROFILE=DIR`` (cProfile in each node
+process, nodes/entry.py) and prints, per node, its top functions per control period: exact call counts,
+and wall times (a function in which the process is preempted is charged for the wait: on two cores,
+``publish`` often is, when it wakes the receiving process). Profiling slows the Python code down: the
+rates of such a run are not the benchmark's. ``py-spy record --native`` gives CPU samples instead.
+
+The probe that watches the loop takes its messages serialised (no conversion to Python messages) and
+spins an EventsExecutor, so that it costs the two nodes as little CPU as possible. Every part runs in a
+ROS domain of its own (random, localhost only). The machine's load average is printed with each part:
+they are wall-clock numbers.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import pstats
 import random
 import signal
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 CONTROL_PERIOD_NS = 4_000_000
 ROTORS = 8
+EXECUTORS = ("events", "single")
+WARM_UP_S = 2.0
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
-def stamp_ns(message) -> int:  # noqa: ANN001 - any stamped message
-    return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+def load() -> str:
+    return "load average " + " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
-def start(argv: list[str], log: Path) -> subprocess.Popen:
+def raw_stamp_ns(data: bytes) -> int:
+    """header.stamp of a serialised stamped message (CDR: 4 bytes of encapsulation, then sec, nanosec)."""
+    sec, nanosec = struct.unpack_from("<iI" if data[1] == 1 else ">iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time [s] of a process, all its threads."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def start(argv: list[str], log: Path, **env: str) -> subprocess.Popen:
     with open(log, "wb") as output:
         return subprocess.Popen(
             argv,
             stdin=subprocess.DEVNULL,
             stdout=output,
             stderr=subprocess.STDOUT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **env),
         )
 
 
@@ -55,129 +99,183 @@ def stop(processes: list[subprocess.Popen]) -> None:
             process.send_signal(signal.SIGINT)
     for process in processes:
         try:
-            process.wait(10.0)
+            process.wait(15.0)
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
 
 
+def new_domain() -> None:
+    """A ROS domain of its own for what starts next (a finished part's participants cannot interfere)."""
+    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(101, 200))
+
+
+def spin_events(executor: Any, keep_going: Callable[[], bool]) -> None:
+    """Spin an EventsExecutor in slices, as nodes/entry.py does (its ``spin()`` busy-waits in the wheels)."""
+    while keep_going():
+        executor.spin_once(timeout_sec=0.1)
+
+
 class Probe:
-    """An rclpy node spun in a background thread."""
+    """An rclpy node in a context of its own, spun by an EventsExecutor in a background thread."""
 
     def __init__(self, name: str):
         import rclpy
-        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.experimental import EventsExecutor
 
         self.context = rclpy.Context()
         rclpy.init(args=[name], context=self.context)
         self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.running = True
+        self.thread = threading.Thread(
+            target=spin_events, args=(self.executor, lambda: self.running and self.context.ok()), daemon=True
+        )
         self.thread.start()
 
+    def stamps(self, topic: str, msg_type: Any, qos: Any = 100) -> tuple[dict[int, float], threading.Lock]:
+        """Arrival wall time (perf_counter) per stamp of a topic, taken serialised."""
+        arrivals: dict[int, float] = {}
+        lock = threading.Lock()
+
+        def on_message(data: bytes) -> None:
+            now = time.perf_counter()
+            with lock:
+                arrivals[raw_stamp_ns(data)] = now
+
+        self.node.create_subscription(msg_type, topic, on_message, qos, raw=True)
+        return arrivals, lock
+
     def close(self) -> None:
-        self.executor.shutdown()
+        self.running = False
         self.thread.join(5.0)
+        self.executor.shutdown()
         self.node.destroy_node()
         self.context.try_shutdown()
 
 
-def closed_loop(seconds: float, airframe: str, logs: Path) -> dict[str, float]:
+def node_processes(
+    airframe: str, logs: Path, tag: str, simulator: list[str], controller: list[str], **env: str
+) -> list[subprocess.Popen]:
+    node = [sys.executable, "-m", "multirotor_ros.cli", "node"]
+    return [
+        start(
+            [*node, "simulator", "--ros-args", "-p", f"airframe:={airframe}", "-p", "publish_clock:=true"]
+            + [a for p in ["physics_rate_hz:=1000.0", "initial_z:=1.0", *simulator] for a in ("-p", p)],
+            logs / f"simulator-{tag}.log",
+            **env,
+        ),
+        start(
+            [*node, "controller", "--ros-args", "-p", f"airframe:={airframe}", "-p", "use_sim_time:=true"]
+            + [a for p in controller for a in ("-p", p)],
+            logs / f"controller-{tag}.log",
+            **env,
+        ),
+    ]
+
+
+def fly(probe: Probe, processes: list[subprocess.Popen], commands: dict[int, float], logs: Path) -> None:
+    """Wait for the loop to run, send the hover setpoint, let it settle."""
     from geometry_msgs.msg import PoseStamped
+
+    setpoint = probe.node.create_publisher(PoseStamped, "/setpoint", 10)
+    deadline = time.monotonic() + 120.0
+    while not (commands and setpoint.get_subscription_count()):
+        if time.monotonic() > deadline or any(p.poll() is not None for p in processes):
+            raise SystemExit(f"the nodes did not come up; logs in {logs}")
+        time.sleep(0.1)
+    message = PoseStamped()
+    message.header.frame_id = "odom"
+    message.pose.position.z = 1.0
+    message.pose.orientation.w = 1.0
+    setpoint.publish(message)
+    time.sleep(WARM_UP_S)  # discovery settled, caches hot
+
+
+def lockstep(
+    seconds: float, airframe: str, logs: Path, executor: str, tag: str, profile: Path | None
+) -> dict:
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
 
-    node = [sys.executable, "-m", "multirotor_ros.cli", "node"]
-    processes = [
-        start(
-            [
-                *node,
-                "simulator",
-                "--ros-args",
-                "-p",
-                f"airframe:={airframe}",
-                "-p",
-                "real_time_factor:=0.0",
-                "-p",
-                "publish_clock:=true",
-                "-p",
-                "physics_rate_hz:=1000.0",
-                "-p",
-                "initial_z:=1.0",
-            ],
-            logs / "simulator.log",
-        ),
-        start(
-            [*node, "controller", "--ros-args", "-p", f"airframe:={airframe}", "-p", "use_sim_time:=true"],
-            logs / "controller.log",
-        ),
-    ]
+    new_domain()
+    env = {"MULTIROTOR_ROS_EXECUTOR": executor}
+    if profile is not None:
+        env["MULTIROTOR_ROS_PROFILE"] = str(profile)
+    processes = node_processes(airframe, logs, tag, ["real_time_factor:=0.0"], [], **env)
     probe = Probe("bench_probe")
-    commands: dict[int, float] = {}
-    odometry: dict[int, float] = {}
-    lock = threading.Lock()
-
-    def on_command(message: JointState) -> None:
-        with lock:
-            commands[stamp_ns(message)] = time.perf_counter()
-
-    def on_odom(message: Odometry) -> None:
-        with lock:
-            odometry[stamp_ns(message)] = time.perf_counter()
-
     try:
-        probe.node.create_subscription(JointState, "/motor_speed_cmd", on_command, 100)
-        probe.node.create_subscription(Odometry, "/odom", on_odom, 100)
-        setpoint = probe.node.create_publisher(PoseStamped, "/setpoint", 10)
-        deadline = time.monotonic() + 120.0
-        while not (commands and setpoint.get_subscription_count()):
-            if time.monotonic() > deadline or any(p.poll() is not None for p in processes):
-                raise SystemExit(f"the nodes did not come up; logs in {logs}")
-            time.sleep(0.1)
-        message = PoseStamped()
-        message.header.frame_id = "odom"
-        message.pose.position.z = 1.0
-        message.pose.orientation.w = 1.0
-        setpoint.publish(message)
-        time.sleep(2.0)  # warm-up: discovery settled, caches hot
-        with lock:
+        commands, lock = probe.stamps("/motor_speed_cmd", JointState)
+        odometry, odometry_lock = probe.stamps("/odom", Odometry)
+        fly(probe, processes, commands, logs)
+        with lock, odometry_lock:
             commands.clear()
             odometry.clear()
+        cpu_start = [cpu_s(p.pid) for p in processes]
         start_wall = time.perf_counter()
         time.sleep(seconds)
-        with lock:
+        with lock, odometry_lock:
             wall = time.perf_counter() - start_wall
+            cpu = [cpu_s(p.pid) - c for p, c in zip(processes, cpu_start, strict=True)]
             command_items = sorted(commands.items())
             odometry_items = dict(odometry)
     finally:
         probe.close()
         stop(processes)
-    simulated = (max(odometry_items) - min(odometry_items)) * 1e-9
+    periods = len(command_items)
     latencies = [
         odometry_items[t + CONTROL_PERIOD_NS] - received
         for t, received in command_items
         if t + CONTROL_PERIOD_NS in odometry_items
     ]
-    latencies = [latency for latency in latencies if latency > 0]
+    latencies = [latency for latency in latencies if latency > 0] or [float("nan")] * 2
     return {
-        "sim_s_per_wall_s": simulated / wall,
-        "control_periods_per_s": len(command_items) / wall,
+        "sim_s_per_wall_s": (max(odometry_items) - min(odometry_items)) * 1e-9 / wall,
+        "periods_per_s": periods / wall,
         "latency_median_ms": 1e3 * statistics.median(latencies),
         "latency_p95_ms": 1e3 * statistics.quantiles(latencies, n=20)[-1],
-        "latency_samples": len(latencies),
+        "simulator_cpu_ms": 1e3 * cpu[0] / max(periods, 1),
+        "controller_cpu_ms": 1e3 * cpu[1] / max(periods, 1),
+        "periods": periods,
     }
 
 
-def pong() -> None:
-    """Child role: answer each Odometry with an 8-rotor JointState carrying its stamp."""
+# ------------------------------------------------------------------------------------------------
+# Ceiling: bare rclpy ping-pong
+
+
+def child_node(name: str, executor_name: str) -> tuple[Any, Any, Callable[[Callable[[], bool]], None]]:
     import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    rclpy.init()
+    node = rclpy.create_node(name)
+    if executor_name == "events":
+        from rclpy.experimental import EventsExecutor
+
+        executor: Any = EventsExecutor()
+    else:
+        executor = SingleThreadedExecutor()
+    executor.add_node(node)
+
+    def spin(keep_going: Callable[[], bool]) -> None:
+        if executor_name == "events":
+            spin_events(executor, keep_going)
+        else:
+            while keep_going():
+                executor.spin_once(timeout_sec=0.1)
+
+    return rclpy, node, spin
+
+
+def pong(executor_name: str) -> None:
+    """Child role: answer each Odometry with an 8-rotor JointState carrying its stamp."""
     from nav_msgs.msg import Odometry
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import JointState
 
-    rclpy.init()
-    node = rclpy.create_node("bench_pong")
+    rclpy, node, spin = child_node("bench_pong", executor_name)
     reply = JointState(name=[f"rotor_{k}" for k in range(1, ROTORS + 1)], velocity=[300.0] * ROTORS)
     publisher = node.create_publisher(JointState, "/bench/cmd", 10)
 
@@ -187,149 +285,283 @@ def pong() -> None:
 
     node.create_subscription(Odometry, "/bench/odom", on_odom, 10)
     try:
-        rclpy.spin(node)
+        spin(rclpy.ok)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
 
 
-def sink() -> None:
-    """Child role: count Odometry messages; print the count when interrupted."""
-    import rclpy
-    from nav_msgs.msg import Odometry
-    from rclpy.executors import ExternalShutdownException
-
-    rclpy.init()
-    node = rclpy.create_node("bench_sink")
-    received = []
-    node.create_subscription(Odometry, "/bench/stream", lambda m: received.append(time.perf_counter()), 1000)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # SIGINT can shut the context down while a message is being taken: the count so far stands.
-        if rclpy.ok():
-            raise
-    if len(received) > 1:
-        print(f"RATE {(len(received) - 1) / (received[-1] - received[0]):.1f}", flush=True)
-
-
-def ceiling(seconds: float, logs: Path) -> dict[str, float]:
+def ping(executor_name: str, seconds: float) -> None:
+    """Child role: publish the next Odometry from the callback of each answer; print round trips/s."""
     from builtin_interfaces.msg import Time
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
 
-    me = [sys.executable, str(Path(__file__).resolve())]
-    partner = start([*me, "--role", "pong"], logs / "pong.log")
-    probe = Probe("bench_ping")
-    round_trips = 0
-    answered = threading.Event()
+    rclpy, node, spin = child_node("bench_ping", executor_name)
+    publisher = node.create_publisher(Odometry, "/bench/odom", 10)
+    message = Odometry()
+    answers = [0]
+    last_sent = [time.monotonic()]
+
+    def send() -> None:
+        message.header.stamp = Time(sec=answers[0] // 250, nanosec=(answers[0] % 250) * CONTROL_PERIOD_NS)
+        last_sent[0] = time.monotonic()
+        publisher.publish(message)
 
     def on_reply(_: JointState) -> None:
-        answered.set()
+        answers[0] += 1
+        send()
 
+    def resend() -> None:  # a lost message would stop the ping-pong
+        if time.monotonic() - last_sent[0] > 0.5:
+            send()
+
+    node.create_subscription(JointState, "/bench/cmd", on_reply, 10)
+    node.create_timer(0.5, resend)
+    deadline = time.monotonic() + 60.0
+    while publisher.get_subscription_count() == 0 or node.count_publishers("/bench/cmd") == 0:
+        if time.monotonic() > deadline:
+            raise SystemExit("the ping-pong partner did not come up")
+        time.sleep(0.1)
+    time.sleep(1.0)
+    send()
+    warm_end = time.monotonic() + WARM_UP_S
+    spin(lambda: time.monotonic() < warm_end)
+    counted, started = answers[0], time.perf_counter()
+    end = time.monotonic() + seconds
+    spin(lambda: time.monotonic() < end)
+    print(f"RATE {(answers[0] - counted) / (time.perf_counter() - started):.1f}", flush=True)
+
+
+def ceiling(seconds: float, logs: Path, executor: str, tag: str) -> float:
+    """Round trips per second of the ping-pong, both sides on ``executor``."""
+    new_domain()
+    me = [sys.executable, str(Path(__file__).resolve())]
+    partner = start([*me, "--role", "pong", "--executors", executor], logs / f"pong-{tag}.log")
     try:
-        probe.node.create_subscription(JointState, "/bench/cmd", on_reply, 10)
-        publisher = probe.node.create_publisher(Odometry, "/bench/odom", 10)
-        message = Odometry()
-        deadline = time.monotonic() + 60.0
-        while publisher.get_subscription_count() == 0 or probe.node.count_publishers("/bench/cmd") == 0:
-            if time.monotonic() > deadline:
-                raise SystemExit(f"the ping-pong partner did not come up; log in {logs / 'pong.log'}")
-            time.sleep(0.1)
-        time.sleep(1.0)
-        end = time.perf_counter() + seconds
-        started = time.perf_counter()
-        while time.perf_counter() < end:
-            answered.clear()
-            message.header.stamp = Time(
-                sec=round_trips // 250, nanosec=(round_trips % 250) * CONTROL_PERIOD_NS
-            )
-            publisher.publish(message)
-            if not answered.wait(1.0):
-                continue  # a lost message: send the next one
-            round_trips += 1
-        elapsed = time.perf_counter() - started
+        done = subprocess.run(
+            [*me, "--role", "ping", "--executors", executor, "--seconds", str(seconds)],
+            capture_output=True,
+            text=True,
+            timeout=seconds + 120,
+        )
     finally:
-        probe.close()
         stop([partner])
+    rates = [float(line.split()[1]) for line in done.stdout.splitlines() if line.startswith("RATE ")]
+    if not rates:
+        print(f"  the ping side reported no rate; its output:\n{done.stdout}{done.stderr}")
+    return rates[0] if rates else float("nan")
 
-    counter = subprocess.Popen(
-        [*me, "--role", "sink"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        env=dict(os.environ, PYTHONUNBUFFERED="1"),
-        text=True,
-    )
-    probe = Probe("bench_stream")
+
+# ------------------------------------------------------------------------------------------------
+# Real time
+
+
+def realtime(seconds: float, airframe: str, logs: Path) -> dict:
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import JointState
+
+    new_domain()
+    processes = node_processes(airframe, logs, "realtime", ["real_time_factor:=1.0"], [])
+    probe = Probe("bench_realtime_probe")
+    status: list[dict[str, str]] = []
+    status_lock = threading.Lock()
+
+    def on_pacing(message: DiagnosticArray) -> None:
+        for item in message.status:
+            if item.name.endswith("pacing"):
+                with status_lock:
+                    status.append({v.key: v.value for v in item.values})
+
+    def latest() -> dict[str, str]:
+        with status_lock:
+            return dict(status[-1]) if status else {}
+
     try:
-        publisher = probe.node.create_publisher(Odometry, "/bench/stream", 1000)
-        deadline = time.monotonic() + 60.0
-        while publisher.get_subscription_count() == 0:
-            if time.monotonic() > deadline:
-                raise SystemExit("the stream counter did not come up")
-            time.sleep(0.1)
-        time.sleep(1.0)
-        message = Odometry()
-        end = time.perf_counter() + seconds
-        while time.perf_counter() < end:
-            publisher.publish(message)
-        time.sleep(0.5)
+        probe.node.create_subscription(DiagnosticArray, "/pacing", on_pacing, 10)
+        commands, _ = probe.stamps("/motor_speed_cmd", JointState)
+        fly(probe, processes, commands, logs)
+        first = latest()
+        rss = [(time.monotonic(), [rss_mb(p.pid) for p in processes])]
+        cpu_start = [cpu_s(p.pid) for p in processes]
+        started = time.monotonic()
+        while time.monotonic() - started < seconds:
+            time.sleep(min(5.0, max(0.0, seconds - (time.monotonic() - started))))
+            rss.append((time.monotonic(), [rss_mb(p.pid) for p in processes]))
+            if any(p.poll() is not None for p in processes):
+                raise SystemExit(f"a node ended during the real-time run; logs in {logs}")
+        wall = time.monotonic() - started
+        cpu = [cpu_s(p.pid) - c for p, c in zip(processes, cpu_start, strict=True)]
+        time.sleep(1.2)  # one more pacing status
+        last = latest()
     finally:
         probe.close()
-        counter.send_signal(signal.SIGINT)
-        output, _ = counter.communicate(timeout=20.0)
-    rates = [float(line.split()[1]) for line in output.splitlines() if line.startswith("RATE ")]
-    if not rates:
-        print(f"the stream counter reported no rate; its output:\n{output}")
+        stop(processes)
+    if not (first and last):
+        raise SystemExit(f"no pacing status from the simulator; logs in {logs}")
+
+    def delta(key: str) -> float:
+        return float(last.get(key, "nan")) - float(first.get(key, "nan"))
+
+    on_time, late = delta("control_periods_on_time"), delta("control_periods_late")
+    half = [(t, sample) for t, sample in rss if t >= rss[0][0] + (rss[-1][0] - rss[0][0]) / 2]
+    slopes = []
+    for k in range(len(processes)):
+        times = [t for t, _ in half]
+        values = [sample[k] for _, sample in half]
+        slopes.append(
+            60 * statistics.linear_regression(times, values).slope if len(half) > 1 else float("nan")
+        )
     return {
-        "round_trips_per_s": round_trips / elapsed,
-        "ceiling_sim_s_per_wall_s": round_trips / elapsed * CONTROL_PERIOD_NS * 1e-9,
-        "one_way_odometry_per_s": rates[0] if rates else float("nan"),
+        "wall_s": wall,
+        "on_time_share": on_time / (on_time + late) if on_time + late else float("nan"),
+        "periods": on_time + late,
+        "late": late,
+        "achieved_factor": float(last.get("achieved_real_time_factor_since_start", "nan")),
+        "rss_start": rss[0][1],
+        "rss_end": rss[-1][1],
+        "rss_growth_second_half": [end - mid for end, mid in zip(rss[-1][1], half[0][1], strict=True)],
+        "rss_slope_mb_per_min": slopes,
+        "cpu_share": [c / wall for c in cpu],
     }
+
+
+# ------------------------------------------------------------------------------------------------
+# Profile
+
+
+# A function each node calls once per control period: what its profile is divided by (the callbacks
+# themselves are called from C++ by the EventsExecutor, where cProfile does not count them reliably).
+PERIOD_FUNCTIONS = {"controller": "state_from_odometry", "simulator": "odometry_message"}
+
+
+def where_the_time_goes(profile_dir: Path, window_periods: int, rows: int = 16) -> None:
+    """Per node: its top functions by own time, and its messages and conversions, per control period."""
+    for path in sorted(profile_dir.glob("*.prof")):
+        entries = pstats.Stats(str(path)).stats  # type: ignore[attr-defined]
+        node = path.name.split("-")[0]
+        counted = [
+            calls for (_, _, name), (_, calls, *_) in entries.items() if name == PERIOD_FUNCTIONS.get(node)
+        ]
+        periods = max(counted, default=window_periods)
+        total = sum(own for (_, _, own, _, _) in entries.values())
+        print(f"  {path.name}: {periods} control periods, {1e6 * total / periods:.0f} µs of wall time each")
+        print(f"    {'own µs/period':>13} {'calls/period':>12}  function")
+
+        def row(key: tuple[str, int, str], value: tuple, periods: int = periods) -> str:
+            filename, line, name = key
+            where = (
+                name
+                if filename == "~"
+                else f"{Path(filename).parent.name}/{Path(filename).name}:{line} {name}"
+            )
+            return f"    {1e6 * value[2] / periods:13.1f} {value[1] / periods:12.2f}  {where}"
+
+        for key, value in sorted(entries.items(), key=lambda item: item[1][2], reverse=True)[:rows]:
+            print(row(key, value))
+        print("    messages and conversions:")
+        conversions = [
+            (key, value)
+            for key, value in entries.items()
+            if key[0].endswith(("nodes/messages.py", "rclpy/publisher.py"))
+            or ("/msg/_" in key[0] and key[2] == "__init__")
+        ]
+        for key, value in sorted(conversions, key=lambda item: item[1][1], reverse=True):
+            if value[1] >= 0.05 * periods:
+                print(row(key, value))
+
+
+# ------------------------------------------------------------------------------------------------
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=10.0, help="measuring time of each part [s]")
+    parser.add_argument(
+        "--seconds", type=float, default=10.0, help="measuring time of each lockstep/ceiling run"
+    )
+    parser.add_argument("--rounds", type=int, default=1, help="repeat the lockstep and ceiling runs")
+    parser.add_argument("--realtime-seconds", type=float, default=30.0, help="real-time run [s]; 0 = skip")
+    parser.add_argument("--executors", default=",".join(EXECUTORS), help="executors of the nodes, in order")
     parser.add_argument("--airframe", default="x8_octorotor")
-    parser.add_argument("--role", choices=("pong", "sink"), help=argparse.SUPPRESS)
+    parser.add_argument("--profile", type=Path, help="profile the lockstep nodes into this directory")
+    parser.add_argument("--skip-ceiling", action="store_true")
+    parser.add_argument("--role", choices=("pong", "ping"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    executors = [e for e in args.executors.split(",") if e]
     if args.role == "pong":
-        pong()
+        pong(executors[0])
         return 0
-    if args.role == "sink":
-        sink()
+    if args.role == "ping":
+        ping(executors[0], args.seconds)
         return 0
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 200)))
+    unknown = set(executors) - set(EXECUTORS)
+    if unknown:
+        parser.error(f"unknown executor(s) {', '.join(sorted(unknown))}; choose from {', '.join(EXECUTORS)}")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     logs = Path(tempfile.mkdtemp(prefix="bench_closed_loop_"))
-    print(
-        f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {os.cpu_count()} CPUs, "
-        f"load average {os.getloadavg()[0]:.2f} at start, logs in {logs}"
-    )
-    loop = closed_loop(args.seconds, args.airframe, logs)
-    print(f"closed loop ({args.airframe}, 1 kHz physics, 250 Hz control, real_time_factor 0, lockstep):")
-    print(
-        f"  {loop['sim_s_per_wall_s']:.2f} simulated s per wall s "
-        f"({loop['control_periods_per_s']:.0f} control "
-        f"periods/s)"
-    )
-    print(
-        f"  command -> next state reflecting it: median {loop['latency_median_ms']:.2f} ms, "
-        f"95th percentile {loop['latency_p95_ms']:.2f} ms ({loop['latency_samples']} commands)"
-    )
-    top = ceiling(args.seconds, logs)
-    print("ceiling (bare rclpy, same messages, no physics, no control):")
-    print(
-        f"  Odometry -> JointState ping-pong: {top['round_trips_per_s']:.0f} round trips/s "
-        f"= {top['ceiling_sim_s_per_wall_s']:.2f} simulated s per wall s at 4 ms per period"
-    )
-    print(f"  one-way Odometry stream: {top['one_way_odometry_per_s']:.0f} messages/s")
-    print(
-        f"  the closed loop reaches {100 * loop['sim_s_per_wall_s'] / top['ceiling_sim_s_per_wall_s']:.0f} % "
-        f"of the ping-pong ceiling; load average {os.getloadavg()[0]:.2f} at the end"
-    )
+    print(f"{os.cpu_count()} CPUs, {load()} at start, logs in {logs}")
+    loops: dict[str, list[dict]] = {e: [] for e in executors}
+    tops: dict[str, list[float]] = {e: [] for e in EXECUTORS}
+    for round_ in range(args.rounds):
+        for executor in executors:
+            profile = (
+                args.profile
+                if args.profile is not None and round_ == 0 and executor == executors[0]
+                else None
+            )
+            loop = lockstep(args.seconds, args.airframe, logs, executor, f"{executor}-{round_}", profile)
+            loops[executor].append(loop)
+            print(
+                f"lockstep, nodes on {executor:6s}: {loop['sim_s_per_wall_s']:.2f} sim s/wall s = "
+                f"{loop['periods_per_s']:.0f} control periods/s; command -> state median "
+                f"{loop['latency_median_ms']:.2f} ms, p95 {loop['latency_p95_ms']:.2f} ms; CPU per period: "
+                f"simulator {loop['simulator_cpu_ms']:.2f} ms, controller {loop['controller_cpu_ms']:.2f} ms "
+                f"({load()})",
+                flush=True,
+            )
+            if profile is not None:
+                where_the_time_goes(profile, loop["periods"])
+        if not args.skip_ceiling:
+            for executor in EXECUTORS:
+                rate = ceiling(args.seconds, logs, executor, f"{executor}-{round_}")
+                tops[executor].append(rate)
+                print(
+                    f"ceiling, bare rclpy Odometry -> JointState ping-pong on {executor:6s}: {rate:.0f} "
+                    f"round trips/s = {rate * CONTROL_PERIOD_NS * 1e-9:.2f} sim s/wall s ({load()})",
+                    flush=True,
+                )
+    print("summary (median of the rounds):")
+    ceilings = {e: statistics.median(r) for e, r in tops.items() if r}
+    for executor, rate in ceilings.items():
+        print(f"  ceiling on {executor:6s}: {rate:.0f} round trips/s")
+    best = max(ceilings.values(), default=float("nan"))
+    for executor, runs in loops.items():
+        rate = statistics.median(r["periods_per_s"] for r in runs)
+        spread = f" (rounds {', '.join(f'{r["periods_per_s"]:.0f}' for r in runs)})" if len(runs) > 1 else ""
+        shares = ", ".join(f"{100 * rate / top:.0f} % of the {e} ceiling" for e, top in ceilings.items())
+        print(
+            f"  lockstep on {executor:6s}: {rate:.0f} control periods/s{spread} = "
+            f"{rate * CONTROL_PERIOD_NS * 1e-9:.2f} x real time" + (f"; {shares}" if shares else "")
+        )
+    if ceilings:
+        print(f"  best ceiling: {best:.0f} round trips/s")
+    if args.realtime_seconds > 0:
+        print(
+            f"real time ({args.realtime_seconds:g} s, nodes on the executor of $MULTIROTOR_ROS_EXECUTOR, "
+            f"default events; {load()} at its start):"
+        )
+        rt = realtime(args.realtime_seconds, args.airframe, logs)
+        print(
+            f"  {100 * rt['on_time_share']:.2f} % of {rt['periods']:.0f} control periods on time "
+            f"({rt['late']:.0f} late); achieved real-time factor {rt['achieved_factor']:.3f}"
+        )
+        for k, name in enumerate(("simulator", "controller")):
+            print(
+                f"  {name}: RSS {rt['rss_start'][k]:.1f} MB after warm-up, {rt['rss_end'][k]:.1f} MB after "
+                f"{rt['wall_s']:.0f} s ({rt['rss_growth_second_half'][k]:+.1f} MB over the second half, "
+                f"trend {rt['rss_slope_mb_per_min'][k]:+.2f} MB/min); "
+                f"CPU {100 * rt['cpu_share'][k]:.0f} % of a core"
+            )
+    print(f"{load()} at the end")
     return 0
 
 

@@ -1,8 +1,13 @@
-"""ROS messages <-> numpy (multirotor_ros/nodes/messages.py): round trips, frames and refusals, no DDS."""
+"""ROS messages <-> numpy (multirotor_ros/nodes/messages.py): round trips, frames and refusals.
+
+Without DDS, except the check that a message may be filled and published again as soon as ``publish``
+returns (the reuse the builders' ``out=`` is for).
+"""
 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -10,10 +15,12 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, JointState
 
 from multirotor_ros.model import state as S
 from multirotor_ros.model.state import make_state
+from multirotor_ros.nodes import messages
 from multirotor_ros.nodes.messages import (
     imu_from_message,
     imu_message,
@@ -254,3 +261,115 @@ def test_an_imu_message_that_is_not_finite_is_refused(field: str) -> None:
     getattr(message, field).y = math.nan
     result = imu_from_message(message)
     assert isinstance(result, Refusal) and result.reason == "non-finite imu"
+
+
+# ------------------------------------------------------------------ fast paths and reused messages
+
+# A quaternion's norm as a factor: well within the tolerance of 1e-3 (accepted, normalised) or well
+# beyond it (refused); the fast readers and the checked ones must agree on both.
+norm_factors = st.one_of(st.floats(1 - 8e-4, 1 + 8e-4), st.floats(1.002, 1e3), st.floats(0.0, 0.998))
+values = st.one_of(finite, st.sampled_from([math.nan, math.inf, -math.inf, 1e300]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(values, min_size=3, max_size=3), unit_quaternions(), norm_factors, vectors, vectors)
+def test_the_fast_readers_agree_with_the_checked_ones(position, q_WB, factor, v_B, w_B) -> None:
+    message = Odometry()
+    p, o = message.pose.pose.position, message.pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in position)
+    o.w, o.x, o.y, o.z = (float(v) for v in q_WB * factor)
+    t = message.twist.twist
+    t.linear.x, t.linear.y, t.linear.z = (float(v) for v in v_B)
+    t.angular.x, t.angular.y, t.angular.z = (float(v) for v in w_B)
+    pose = PoseStamped()
+    pose.pose = message.pose.pose
+    for fast, checked, argument in [
+        (messages.state_from_odometry, messages._checked_state, message),
+        (messages.pose_from_message, messages._checked_pose, pose),
+        (messages.setpoint_from_pose, messages._checked_setpoint, pose),
+    ]:
+        quick, slow = fast(argument), checked(argument)
+        if isinstance(slow, Refusal):
+            assert quick == slow
+        else:
+            for a, b in zip(quick, slow, strict=True):
+                np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("speed", [0.0, LIMIT_RAD_S, -0.0])
+def test_speeds_at_the_bounds_are_taken(speed: float) -> None:
+    result = rotor_speeds_from_joint_state(joint_state(ROTORS4, [speed, 1.0, 2.0, 3.0], 7), 4, LIMIT_RAD_S)
+    assert not isinstance(result, Refusal)
+    np.testing.assert_array_equal(result.speeds_rad_s, [speed, 1.0, 2.0, 3.0])
+    assert result.stamp_ns == 7
+
+
+def test_the_taken_speeds_do_not_share_memory_with_the_message() -> None:
+    message = joint_state(ROTORS4, [1.0, 2.0, 3.0, 4.0])
+    result = rotor_speeds_from_joint_state(message, 4, LIMIT_RAD_S)
+    message.velocity[0] = 9.0
+    assert result.speeds_rad_s[0] == 1.0
+
+
+def test_a_message_filled_in_place_is_the_message_built_new() -> None:
+    x1 = make_state(8, position_m=(1, 2, 3), velocity_m_s=(0.5, -1, 2), euler_rad=(0.1, -0.2, 1.0))[0]
+    x2 = make_state(8, position_m=(-4, 5, 6), velocity_m_s=(1, 1, -1), body_rate_rad_s=(0.3, 0.2, 0.1))[0]
+    stamp1, stamp2 = stamp_from_ns(1_000_000_001), stamp_from_ns(2_000_000_002)
+    sensors = SensorConfig()
+    reading = ImuReading(x2[S.QUATERNION], np.array([0.1, 0.2, 9.8]), np.array([0.01, 0.02, 0.03]))
+    other = ImuReading(x1[S.QUATERNION], np.zeros(3), np.ones(3))
+    builders = [
+        (Odometry, lambda s, x, out=None: odometry_message(x, s, "a", "b", out=out)),
+        (PoseStamped, lambda s, x, out=None: pose_message(s, "odom", x[:3], x[S.QUATERNION], out=out)),
+        (
+            Imu,
+            lambda s, x, out=None: simulated_imu_message(
+                s, "base_link", reading if x is x2 else other, sensors, out=out
+            ),
+        ),
+        (JointState, lambda s, x, out=None: joint_state_from_rotor_speeds(x[-8:] * 100 + 1, s, out=out)),
+        (
+            JointState,
+            lambda s, x, out=None: joint_state_from_rotor_speeds(x[-8 if x is x2 else -4 :], s, out=out),
+        ),
+    ]
+    for kind, build in builders:
+        reused = build(stamp1, x1, out=kind())
+        again = build(stamp2, x2, out=reused)
+        assert again is reused
+        assert again == build(stamp2, x2), kind
+
+
+@pytest.mark.ros
+def test_a_message_may_be_changed_and_published_again_as_soon_as_publish_returns() -> None:
+    import threading
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = rclpy.Context()
+    rclpy.init(args=["reuse_check"], context=context)
+    node = rclpy.create_node("reuse_check", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    received: list[float] = []
+    node.create_subscription(Odometry, "reuse_check", lambda m: received.append(m.pose.pose.position.x), 1000)
+    publisher = node.create_publisher(Odometry, "reuse_check", 1000)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        deadline = time.monotonic() + 10.0
+        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        message = Odometry()
+        for k in range(300):
+            odometry_message(make_state(4, position_m=(k, 0, 0))[0], stamp_from_ns(k), out=message)
+            publisher.publish(message)
+        while len(received) < 300 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        executor.shutdown()
+        spinner.join(10.0)
+        node.destroy_node()
+        context.try_shutdown()
+    assert received == [float(k) for k in range(300)]

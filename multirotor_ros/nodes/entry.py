@@ -1,11 +1,18 @@
 """The entry point every node executable shares: ``main(args)`` is ``run_node(NodeClass, args)``.
 
 ``run_node(node_factory, args) -> int`` initialises rclpy in a context of its own (shut down on the
-way out), builds the node with ``node_factory(context=context)``, spins it with a single-threaded
-executor and returns 0 when the spin ends by Ctrl-C (KeyboardInterrupt) or by an external shutdown
-(ExternalShutdownException, e.g. SIGINT handled by rclpy). A node class whose ``__init__`` forwards
-``**kwargs`` to ``rclpy.node.Node`` is a valid factory. A bad parameter or airframe while the node is
-built (ValueError, ParameterException): one line on stderr, status 2.
+way out), builds the node with ``node_factory(context=context)``, spins it (``spin``) with the
+executor ``make_executor`` picks, and returns 0 when the spin ends by Ctrl-C (KeyboardInterrupt), by
+SIGINT/SIGTERM (rclpy shuts the context down) or by any other shutdown of the context. A node class
+whose ``__init__`` forwards ``**kwargs`` to ``rclpy.node.Node`` is a valid factory. A bad parameter or
+airframe while the node is built (ValueError, ParameterException): one line on stderr, status 2. An
+exception raised by a callback ends the spin and propagates (a traceback, status 1).
+
+Environment:
+    ``MULTIROTOR_ROS_EXECUTOR``: ``events`` (default; rclpy.experimental.EventsExecutor) or ``single``
+        (rclpy's SingleThreadedExecutor); see ``make_executor``.
+    ``MULTIROTOR_ROS_PROFILE``: a directory; each node writes a cProfile of its spin there when it
+        stops (``<node>-<pid>.prof``; see ``_profiled``).
 """
 
 from __future__ import annotations
@@ -18,13 +25,14 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -58,19 +66,24 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
     """
     _stacks_on_sigusr1()
     finished = threading.Event()
+    stop = threading.Event()  # SIGINT or SIGTERM while an EventsExecutor spins (see spin)
     try:
-        with initialised_context(args) as context:
+        with initialised_context(args) as context, ExitStack() as signals:
             _watch_for_shutdown(context, finished)
             node: Node | None = None
+            executor: Executor | None = None
             try:
                 try:
                     node = node_factory(context=context)
                 except (ValueError, ParameterException) as error:
                     print(f"{Path(sys.argv[0] if args is None else args[0]).name}: {error}", file=sys.stderr)
                     return 2
-                executor = SingleThreadedExecutor(context=context)
+                executor = make_executor(context, node)
                 executor.add_node(node)
-                executor.spin()
+                if not isinstance(executor, SingleThreadedExecutor):
+                    signals.enter_context(_signals_set(stop))  # until the node is torn down
+                with _profiled(node):
+                    spin(executor, context, stop)
             except (KeyboardInterrupt, ExternalShutdownException):
                 pass
             except Exception:
@@ -80,6 +93,9 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
                 if not _shutting_down(context):
                     raise
             finally:
+                if executor is not None and not isinstance(executor, SingleThreadedExecutor):
+                    # Detach the EventsExecutor's middleware callbacks before the node's entities go.
+                    executor.shutdown(timeout_sec=STOP_GRACE_S)
                 if node is not None:
                     node.destroy_node()
     finally:
@@ -99,6 +115,132 @@ def _shutting_down(context: Context) -> bool:
             return False
         time.sleep(0.01)
     return True
+
+
+EXECUTOR_ENV = "MULTIROTOR_ROS_EXECUTOR"
+EXECUTORS = ("events", "single")
+# The EventsExecutor is spun in slices of this wall time [s]: how soon a shut-down context ends the spin.
+SPIN_SLICE_S = 0.1
+
+
+def make_executor(context: Context, node: Node | None = None) -> Executor:
+    """The executor ``$MULTIROTOR_ROS_EXECUTOR`` names: ``events`` (the default) or ``single``.
+
+    ``events`` is ``rclpy.experimental.EventsExecutor``, which dispatches in C++: the single-threaded
+    executor's Python wait-set machinery costs about 0.8 ms of CPU per node and control period, and the
+    lockstep loop runs about twice as fast without it (bench/bench_closed_loop.py); ``single`` is
+    rclpy's ``SingleThreadedExecutor``. The single-threaded one is used instead of the events one when
+    ``node`` has guard conditions (which the EventsExecutor refuses: a guard condition created later
+    ends the spin with a RuntimeError), without an EventsExecutor (rclpy before 7.1.4), or where it
+    cannot be made (its constructor enables ``faulthandler`` on stderr, which fails when stderr is not a
+    file). Another value of the variable: one line on stderr, and the default.
+
+    Under the EventsExecutor an exception that escapes a callback is logged by rclpy at FATAL, with
+    its traceback, before it reaches ``run_node``; it ignores callback groups (one thread anyway).
+    """
+    choice = os.environ.get(EXECUTOR_ENV) or EXECUTORS[0]
+    if choice not in EXECUTORS:
+        print(f"{EXECUTOR_ENV}={choice!r} is none of {', '.join(EXECUTORS)}: using events", file=sys.stderr)
+        choice = EXECUTORS[0]
+    if choice == "events" and not (node is not None and list(node.guards)):
+        try:
+            from rclpy.experimental import EventsExecutor
+
+            return EventsExecutor(context=context)
+        except (ImportError, AttributeError, ValueError, io.UnsupportedOperation):
+            pass
+    return SingleThreadedExecutor(context=context)
+
+
+def spin(executor: Executor, context: Context, stop: threading.Event | None = None) -> None:
+    """Spin until the context is shut down or ``stop`` is set (a callback's exception propagates).
+
+    The single-threaded executor spins as rclpy does: rclpy's signal handler shuts the context down,
+    in C, even in the middle of a callback (whose publish then fails; ``run_node`` ignores that).
+
+    The EventsExecutor of the rclpy 7.1 wheels must not be spun with ``spin()``: that waits for its
+    queue with a deadline of ``steady_clock::time_point::max()``, which the wheels' libstdc++ (built
+    without ``pthread_cond_clockwait``) converts to the system clock with an overflow, so the wait
+    never blocks (a core at 100 %); and a context shut down by rclpy's signal handler (in C, without
+    the Python callback that would wake it) does not end it, so Ctrl-C would not stop the node.
+    ``spin_once`` with a finite timeout waits correctly and returns after one event: it is called (a
+    timeout of ``SPIN_SLICE_S``) until the context is shut down or ``stop`` is set; then the context is
+    shut down. (``spin_until_future_complete`` with a timeout would not do: it checks its deadline only
+    when the queue is empty, which in lockstep it never is, so it would never return.) ``run_node``
+    has SIGINT and SIGTERM set ``stop`` (``_signals_set``), so that a signal ends the spin between two
+    callbacks: rclpy's own handler would shut the context down in the middle of one, and the
+    EventsExecutor logs the failing publish that follows as a FATAL error with its traceback.
+    """
+    if isinstance(executor, SingleThreadedExecutor):
+        executor.spin()
+        return
+    stop = stop or threading.Event()
+    # context.ok() takes a lock and a call into C (about 1 us) and a control period has several events:
+    # it is asked at most every SPIN_SLICE_S / 2 instead of after each one.
+    next_check_s = 0.0
+    try:
+        while not stop.is_set():
+            now_s = time.monotonic()
+            if now_s >= next_check_s:
+                if not context.ok():
+                    break
+                next_check_s = now_s + SPIN_SLICE_S / 2
+            executor.spin_once(timeout_sec=SPIN_SLICE_S)
+    finally:
+        if stop.is_set():
+            context.try_shutdown()
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def _signals_set(stop: threading.Event) -> Iterator[None]:
+    """SIGINT and SIGTERM set ``stop`` while inside (Python handlers in place of rclpy's).
+
+    Outside the main thread (where Python cannot set handlers) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {number: signal.signal(number, lambda *_: stop.set()) for number in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        # rclpy's handler was installed from C (getsignal gives None): Python's defaults take its place.
+        defaults: dict[int, Any] = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL}
+        for number, handler in previous.items():
+            signal.signal(number, defaults[number] if handler is None else handler)
+
+
+PROFILE_ENV = "MULTIROTOR_ROS_PROFILE"
+
+
+@contextmanager
+def _profiled(node: Node) -> Iterator[None]:
+    """With ``$MULTIROTOR_ROS_PROFILE`` set to a directory: a cProfile of the spin, written there on exit.
+
+    The file is ``<node name>-<pid>.prof`` (read it with ``python -m pstats``). The call counts are exact;
+    the times are wall time (Python 3.12's cProfile watches every thread, so a per-thread CPU clock
+    would mix threads up): a function in which the process is preempted, typically ``publish`` waking
+    the receiving process on a busy machine, is charged for the wait. Profiling slows Python down.
+    Callbacks that the EventsExecutor calls from C++ are not counted reliably (functions they call are):
+    for CPU time per function, ``perf record --call-graph dwarf`` with ``PYTHONPERFSUPPORT=1`` is better.
+    """
+    directory = os.environ.get(PROFILE_ENV)
+    if not directory:
+        yield
+        return
+    import cProfile
+
+    profile = cProfile.Profile()
+    profile.enable()
+    try:
+        yield
+    finally:
+        profile.disable()
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        profile.dump_stats(Path(directory) / f"{node.get_name()}-{os.getpid()}.prof")
 
 
 def _stacks_on_sigusr1() -> None:

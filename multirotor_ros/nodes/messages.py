@@ -24,16 +24,27 @@ Quaternions and stamps
 
 Every ``*_from_*`` reader of a state refuses non-finite values and a quaternion whose norm is not 1
 (within 1e-3; the accepted one is normalised).
+
+Speed (issue 10: nodes convert several messages per 4 ms control period). The readers check the common
+case (every value finite, a unit quaternion, rotors named in order) on plain floats and return at once;
+only a message that fails it takes the slower path that finds and words the reason, so the refusals
+are the same as ever. The builders take ``out=``: a message of the right type to fill in place instead
+of a new one (constructing an Odometry alone costs more than filling it). Publishing copies a message
+into the middleware before ``publish`` returns (rclpy converts it to its C struct, which rcl then
+serialises), so a publisher may reuse one message for every publish; a caller that keeps a message it
+published (to resend it, say) must not pass the same object as ``out`` of the next one.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cache
 from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, PoseStamped, Quaternion, Vector3
+from geometry_msgs.msg import PoseStamped, Quaternion
 from nav_msgs.msg import Odometry
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import Imu, JointState
@@ -59,13 +70,33 @@ class RotorSpeeds:
 
 def rotor_names(n_rotors: int) -> list[str]:
     """``["rotor_1", ..., "rotor_N"]``."""
-    return [f"rotor_{k}" for k in range(1, n_rotors + 1)]
+    return list(_rotor_names(n_rotors))
+
+
+@cache
+def _rotor_names(n_rotors: int) -> tuple[str, ...]:
+    return tuple(f"rotor_{k}" for k in range(1, n_rotors + 1))
 
 
 def rotor_speeds_from_joint_state(message: Any, n_rotors: int, limit_rad_s: float) -> RotorSpeeds | Refusal:
     """Validate a rotor-speed JointState (see the module docstring); never raises on bad content."""
-    names = list(message.name)
-    velocity = np.asarray(message.velocity, dtype=float)
+    names, velocity = message.name, message.velocity
+    # The common case: names in rotor order, every speed within [0, limit] (NaN fails the comparison).
+    if (
+        len(velocity) == n_rotors
+        and tuple(names) == _rotor_names(n_rotors)
+        and all(0.0 <= v <= limit_rad_s for v in velocity)
+    ):
+        return RotorSpeeds(np.array(velocity, dtype=float), stamp_to_ns(message.header.stamp))
+    return _checked_rotor_speeds(names, velocity, n_rotors, limit_rad_s, message.header.stamp)
+
+
+def _checked_rotor_speeds(
+    message_names: Any, message_velocity: Any, n_rotors: int, limit_rad_s: float, stamp: Any
+) -> RotorSpeeds | Refusal:
+    """rotor_speeds_from_joint_state of any message: names in any order, and the reason of a refusal."""
+    names = list(message_names)
+    velocity = np.asarray(message_velocity, dtype=float)
     if len(names) != n_rotors:
         return Refusal("wrong rotor count", f"{len(names)} names, the airframe has {n_rotors} rotors")
     if velocity.shape != (n_rotors,):
@@ -94,7 +125,7 @@ def rotor_speeds_from_joint_state(message: Any, n_rotors: int, limit_rad_s: floa
             "oversized speed",
             f"rotor_{k + 1} = {speeds[k]:g} rad/s > {limit_rad_s:g} rad/s (speeds are rad/s, not rpm)",
         )
-    return RotorSpeeds(speeds, stamp_to_ns(message.header.stamp))
+    return RotorSpeeds(speeds, stamp_to_ns(stamp))
 
 
 def _rotor_number(name: str, n_rotors: int) -> int | None:
@@ -105,12 +136,16 @@ def _rotor_number(name: str, n_rotors: int) -> int | None:
     return number if 1 <= number <= n_rotors else None
 
 
-def joint_state_from_rotor_speeds(speeds_rad_s: ArrayLike, stamp: Time) -> JointState:
-    """A JointState with ``rotor_1..rotor_N`` and the speeds [rad/s] as ``velocity``."""
-    speeds = np.asarray(speeds_rad_s, dtype=float)
-    message = JointState()
+def joint_state_from_rotor_speeds(
+    speeds_rad_s: ArrayLike, stamp: Time, *, out: JointState | None = None
+) -> JointState:
+    """A JointState of rotor_1..rotor_N with the speeds [rad/s] as ``velocity``; ``out``: fill that one."""
+    speeds = np.asarray(speeds_rad_s, dtype=float).reshape(-1)
+    message = JointState() if out is None else out
     message.header.stamp = stamp
-    message.name = rotor_names(speeds.size)
+    names = _rotor_names(speeds.size)
+    if out is None or tuple(message.name) != names:
+        message.name = list(names)
     message.velocity = speeds.tolist()
     return message
 
@@ -121,8 +156,9 @@ def joint_state_from_rotor_speeds(speeds_rad_s: ArrayLike, stamp: Time) -> Joint
 
 def quaternion_to_msg(q_wxyz: ArrayLike) -> Quaternion:
     """Our (w, x, y, z) as a geometry_msgs/Quaternion."""
-    x, y, z, w = wxyz_to_ros_quat(q_wxyz)
-    return Quaternion(x=x, y=y, z=z, w=w)
+    message = Quaternion()
+    _set_quaternion(message, q_wxyz)
+    return message
 
 
 def quaternion_from_msg(message: Any) -> FloatArray:
@@ -135,23 +171,36 @@ def vector_from_msg(message: Any) -> FloatArray:
     return np.array([message.x, message.y, message.z], dtype=float)
 
 
-def _point(values: ArrayLike) -> Point:
-    x, y, z = (float(v) for v in np.asarray(values, dtype=float))
-    return Point(x=x, y=y, z=z)
+def _set_xyz(message: Any, values: ArrayLike) -> None:
+    """Fill a Point or Vector3 in place with three values."""
+    message.x, message.y, message.z = np.asarray(values, dtype=float).reshape(3).tolist()
 
 
-def _vector(values: ArrayLike) -> Vector3:
-    x, y, z = (float(v) for v in np.asarray(values, dtype=float))
-    return Vector3(x=x, y=y, z=z)
+def _set_quaternion(message: Any, q_wxyz: ArrayLike) -> None:
+    """Fill a geometry_msgs/Quaternion in place with our (w, x, y, z)."""
+    message.x, message.y, message.z, message.w = wxyz_to_ros_quat(q_wxyz)
+
+
+QUATERNION_NORM_TOLERANCE = StateLimits().quaternion_norm_tolerance
 
 
 def _unit_quaternion(q_WB: FloatArray, what: str) -> FloatArray | Refusal:
     # The largest component first: the norm of 1e308-sized components overflows.
     largest = float(np.max(np.abs(q_WB)))
     norm = largest if largest > 2.0 else float(np.linalg.norm(q_WB))
-    if abs(norm - 1.0) > StateLimits().quaternion_norm_tolerance:
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         return Refusal("invalid orientation", f"{what} quaternion norm {norm:.6g}, expected 1")
     return q_WB / norm
+
+
+def _unit_norm(w: float, x: float, y: float, z: float) -> float | None:
+    """The norm of a finite quaternion if it is 1 within the tolerance, else None (the slow path says why)."""
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    return norm if abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE else None
+
+
+def _finite(*values: float) -> bool:
+    return all(map(math.isfinite, values))
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -175,32 +224,61 @@ def stamp_from_ns(nanoseconds: int) -> Time:
 
 
 def odometry_message(
-    x: ArrayLike, stamp: Time, frame_id: str = "odom", child_frame_id: str = "base_link"
+    x: ArrayLike,
+    stamp: Time,
+    frame_id: str = "odom",
+    child_frame_id: str = "base_link",
+    *,
+    out: Odometry | None = None,
 ) -> Odometry:
-    """nav_msgs/Odometry of one flat state: pose in world ENU, twist in body FLU (REP-105)."""
+    """nav_msgs/Odometry of one flat state: pose in world ENU, twist in body FLU (REP-105).
+
+    ``out``: an Odometry to fill in place (its covariances are left as they are: zero, unknown).
+    """
     # Plain floats rather than numpy: the simulator builds hundreds of these per second.
-    s = [float(v) for v in np.asarray(x, dtype=float).reshape(-1)[: S.ROTORS_START]]
-    w, qx, qy, qz = s[6:10]
-    vx, vy, vz = s[3:6]
+    s = np.asarray(x, dtype=float).reshape(-1)[: S.ROTORS_START].tolist()
+    px, py, pz, vx, vy, vz, w, qx, qy, qz, wx, wy, wz = s
     # v_B = R^T v_W, with R the rotation matrix of q (rows of R^T are the columns of R).
-    v_B = (
-        (1 - 2 * (qy * qy + qz * qz)) * vx + 2 * (qx * qy + w * qz) * vy + 2 * (qx * qz - w * qy) * vz,
-        2 * (qx * qy - w * qz) * vx + (1 - 2 * (qx * qx + qz * qz)) * vy + 2 * (qy * qz + w * qx) * vz,
-        2 * (qx * qz + w * qy) * vx + 2 * (qy * qz - w * qx) * vy + (1 - 2 * (qx * qx + qy * qy)) * vz,
-    )
-    message = Odometry()
+    message = Odometry() if out is None else out
     message.header.stamp = stamp
     message.header.frame_id = frame_id
     message.child_frame_id = child_frame_id
-    message.pose.pose.position = Point(x=s[0], y=s[1], z=s[2])
-    message.pose.pose.orientation = Quaternion(x=qx, y=qy, z=qz, w=w)
-    message.twist.twist.linear = Vector3(x=v_B[0], y=v_B[1], z=v_B[2])
-    message.twist.twist.angular = Vector3(x=s[10], y=s[11], z=s[12])
+    pose = message.pose.pose
+    pose.position.x, pose.position.y, pose.position.z = px, py, pz
+    o = pose.orientation
+    o.x, o.y, o.z, o.w = qx, qy, qz, w
+    twist = message.twist.twist
+    linear = twist.linear
+    linear.x = (1 - 2 * (qy * qy + qz * qz)) * vx + 2 * (qx * qy + w * qz) * vy + 2 * (qx * qz - w * qy) * vz
+    linear.y = 2 * (qx * qy - w * qz) * vx + (1 - 2 * (qx * qx + qz * qz)) * vy + 2 * (qy * qz + w * qx) * vz
+    linear.z = 2 * (qx * qz + w * qy) * vx + 2 * (qy * qz - w * qx) * vy + (1 - 2 * (qx * qx + qy * qy)) * vz
+    twist.angular.x, twist.angular.y, twist.angular.z = wx, wy, wz
     return message
 
 
 def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
     """(p_WB_W, v_WB_W, q_WB, w_WB_B) of an Odometry (twist in body FLU), or a Refusal."""
+    pose, twist = message.pose.pose, message.twist.twist
+    position, o, linear, angular = pose.position, pose.orientation, twist.linear, twist.angular
+    px, py, pz = position.x, position.y, position.z
+    w, qx, qy, qz = o.w, o.x, o.y, o.z
+    bx, by, bz = linear.x, linear.y, linear.z
+    wx, wy, wz = angular.x, angular.y, angular.z
+    norm = _unit_norm(w, qx, qy, qz) if _finite(px, py, pz, w, qx, qy, qz, bx, by, bz, wx, wy, wz) else None
+    if norm is None:
+        return _checked_state(message)
+    w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
+    # v_W = R v_B, R the rotation matrix of the unit quaternion (model/rotation.py quat_to_matrix).
+    v_W = (
+        (1 - 2 * (qy * qy + qz * qz)) * bx + 2 * (qx * qy - w * qz) * by + 2 * (qx * qz + w * qy) * bz,
+        2 * (qx * qy + w * qz) * bx + (1 - 2 * (qx * qx + qz * qz)) * by + 2 * (qy * qz - w * qx) * bz,
+        2 * (qx * qz - w * qy) * bx + 2 * (qy * qz + w * qx) * by + (1 - 2 * (qx * qx + qy * qy)) * bz,
+    )
+    return np.array((px, py, pz)), np.array(v_W), np.array((w, qx, qy, qz)), np.array((wx, wy, wz))
+
+
+def _checked_state(message: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
+    """state_from_odometry of any message, with the reason of a refusal."""
     p = vector_from_msg(message.pose.pose.position)
     q = quaternion_from_msg(message.pose.pose.orientation)
     v_B = vector_from_msg(message.twist.twist.linear)
@@ -217,18 +295,29 @@ def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArra
     return p, quat_to_matrix(q_unit) @ v_B, q_unit, w_B
 
 
-def pose_message(stamp: Time, frame_id: str, p_WB_W: ArrayLike, q_WB: ArrayLike) -> PoseStamped:
-    """geometry_msgs/PoseStamped of a position (world ENU) and attitude."""
-    message = PoseStamped()
+def pose_message(
+    stamp: Time, frame_id: str, p_WB_W: ArrayLike, q_WB: ArrayLike, *, out: PoseStamped | None = None
+) -> PoseStamped:
+    """geometry_msgs/PoseStamped of a position (world ENU) and attitude (``out``: filled in place)."""
+    message = PoseStamped() if out is None else out
     message.header.stamp = stamp
     message.header.frame_id = frame_id
-    message.pose.position = _point(p_WB_W)
-    message.pose.orientation = quaternion_to_msg(q_WB)
+    _set_xyz(message.pose.position, p_WB_W)
+    _set_quaternion(message.pose.orientation, q_WB)
     return message
 
 
 def pose_from_message(message: Any) -> tuple[FloatArray, FloatArray] | Refusal:
     """(p_WB_W, q_WB) of a PoseStamped (a measured pose, e.g. motion capture), or a Refusal."""
+    position, o = message.pose.position, message.pose.orientation
+    px, py, pz, w, qx, qy, qz = position.x, position.y, position.z, o.w, o.x, o.y, o.z
+    norm = _unit_norm(w, qx, qy, qz) if _finite(px, py, pz, w, qx, qy, qz) else None
+    if norm is None:
+        return _checked_pose(message)
+    return np.array((px, py, pz)), np.array((w / norm, qx / norm, qy / norm, qz / norm))
+
+
+def _checked_pose(message: Any) -> tuple[FloatArray, FloatArray] | Refusal:
     p = vector_from_msg(message.pose.position)
     q = quaternion_from_msg(message.pose.orientation)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
@@ -244,6 +333,17 @@ def setpoint_from_pose(message: Any) -> tuple[FloatArray, float] | Refusal:
 
     An all-zero quaternion (a PoseStamped left at its defaults) means yaw 0.
     """
+    position, o = message.pose.position, message.pose.orientation
+    px, py, pz, w, qx, qy, qz = position.x, position.y, position.z, o.w, o.x, o.y, o.z
+    norm = _unit_norm(w, qx, qy, qz) if _finite(px, py, pz, w, qx, qy, qz) else None
+    if norm is None:
+        return _checked_setpoint(message)
+    w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
+    # The yaw of model/rotation.py quat_to_euler.
+    return np.array((px, py, pz)), math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+
+
+def _checked_setpoint(message: Any) -> tuple[FloatArray, float] | Refusal:
     p = vector_from_msg(message.pose.position)
     q = quaternion_from_msg(message.pose.orientation)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
@@ -270,21 +370,28 @@ def imu_message(
     accel_var: float,
     gyro_var: float,
     orientation_var: float,
+    out: Imu | None = None,
 ) -> Imu:
-    """sensor_msgs/Imu: orientation, body rates and specific force in body FLU, diagonal covariances."""
-    message = Imu()
+    """sensor_msgs/Imu: orientation, body rates and specific force in body FLU, diagonal covariances.
+
+    ``out``: an Imu to fill in place.
+    """
+    message = Imu() if out is None else out
     message.header.stamp = stamp
     message.header.frame_id = frame_id
-    message.orientation = quaternion_to_msg(q_WB)
-    message.angular_velocity = _vector(w_WB_B)
-    message.linear_acceleration = _vector(specific_force_B)
-    message.orientation_covariance = _diagonal(orientation_var)
-    message.angular_velocity_covariance = _diagonal(gyro_var)
-    message.linear_acceleration_covariance = _diagonal(accel_var)
+    _set_quaternion(message.orientation, q_WB)
+    _set_xyz(message.angular_velocity, w_WB_B)
+    _set_xyz(message.linear_acceleration, specific_force_B)
+    # The setters copy: a cached diagonal is never shared with a message.
+    message.orientation_covariance = _diagonal(float(orientation_var))
+    message.angular_velocity_covariance = _diagonal(float(gyro_var))
+    message.linear_acceleration_covariance = _diagonal(float(accel_var))
     return message
 
 
-def simulated_imu_message(stamp: Time, frame_id: str, reading: ImuReading, sensors: SensorConfig) -> Imu:
+def simulated_imu_message(
+    stamp: Time, frame_id: str, reading: ImuReading, sensors: SensorConfig, *, out: Imu | None = None
+) -> Imu:
     """The Imu of a simulated reading, with the per-sample variances of the sensor's white noise."""
     return imu_message(
         stamp,
@@ -295,17 +402,23 @@ def simulated_imu_message(stamp: Time, frame_id: str, reading: ImuReading, senso
         accel_var=sensors.accel_sample_std_m_s2**2,
         gyro_var=sensors.gyro_sample_std_rad_s**2,
         orientation_var=sensors.orientation_noise_rad**2,
+        out=out,
     )
 
 
-def _diagonal(variance: float) -> list[float]:
-    return [float(variance), 0.0, 0.0, 0.0, float(variance), 0.0, 0.0, 0.0, float(variance)]
+@cache
+def _diagonal(variance: float) -> FloatArray:
+    diagonal = np.diag([variance] * 3).reshape(9)
+    diagonal.flags.writeable = False
+    return diagonal
 
 
 def imu_from_message(message: Any) -> tuple[FloatArray, FloatArray] | Refusal:
     """(w_WB_B, specific_force_B) of an Imu (body FLU), or a Refusal if not finite."""
-    w_B = vector_from_msg(message.angular_velocity)
-    f_B = vector_from_msg(message.linear_acceleration)
-    if not (np.all(np.isfinite(w_B)) and np.all(np.isfinite(f_B))):
-        return Refusal("non-finite imu", f"rates {format_vector(w_B)}, specific force {format_vector(f_B)}")
-    return w_B, f_B
+    w, f = message.angular_velocity, message.linear_acceleration
+    values = (w.x, w.y, w.z, f.x, f.y, f.z)
+    if _finite(*values):
+        return np.array(values[:3]), np.array(values[3:])
+    w_B = vector_from_msg(w)
+    f_B = vector_from_msg(f)
+    return Refusal("non-finite imu", f"rates {format_vector(w_B)}, specific force {format_vector(f_B)}")
