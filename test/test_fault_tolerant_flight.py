@@ -188,9 +188,11 @@ def test_with_the_parameter_off_a_diagnosis_changes_nothing_and_reallocation_com
         nominal = rotor_3(start + 1.0, start + 3.0)
         assert "reallocating" not in vehicle.controller.log_text()
         # On: rotor 3 is left out, gradually (the filter's time constant, 0.2 s), and the X8 flies on 7.
+        # Each window starts before its change: in lockstep simulated time runs on while the change
+        # travels, and a window opened after it would miss the start of the transition.
+        switched = stamp_s(vehicle.latest())
         (result,) = probe.set_parameters("/ft3/controller", {"fault_tolerant_allocation": True}).values()
         assert result.successful
-        switched = stamp_s(vehicle.latest())
         reallocated = rotor_3(switched, switched + 3.0)
         assert reallocated[-1] < 0.5 * nominal.mean()
         assert_gradual(reallocated)
@@ -198,8 +200,8 @@ def test_with_the_parameter_off_a_diagnosis_changes_nothing_and_reallocation_com
         # A message for a quadrotor is refused (counted, logged once) and leaves the diagnosis in force...
         publish_diagnosis(probe, "/ft3", [1.0] * 4, std=0.01)
         # ...then the diagnosis clears: back to the nominal allocation, again without a jump.
-        publish_diagnosis(probe, "/ft3", [1.0] * 8, std=0.01)
         cleared = stamp_s(vehicle.latest())
+        publish_diagnosis(probe, "/ft3", [1.0] * 8, std=0.01)
         restored = rotor_3(cleared, cleared + 3.0)
         assert restored[-1] == pytest.approx(nominal.mean(), rel=0.05)
         assert_gradual(restored)

@@ -127,13 +127,20 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     """The executor ``$MULTIROTOR_ROS_EXECUTOR`` names: ``events`` (the default) or ``single``.
 
     ``events`` is ``rclpy.experimental.EventsExecutor``, which dispatches in C++: the single-threaded
-    executor's Python wait-set machinery costs about 0.8 ms of CPU per node and control period, and the
-    lockstep loop runs about twice as fast without it (bench/bench_closed_loop.py); ``single`` is
-    rclpy's ``SingleThreadedExecutor``. The single-threaded one is used instead of the events one when
-    ``node`` has guard conditions (which the EventsExecutor refuses: a guard condition created later
-    ends the spin with a RuntimeError), without an EventsExecutor (rclpy before 7.1.4), or where it
-    cannot be made (its constructor enables ``faulthandler`` on stderr, which fails when stderr is not a
-    file). Another value of the variable: one line on stderr, and the default.
+    executor's Python wait-set machinery costs the lockstep simulator about 0.5 ms of CPU per control
+    period (bench/bench_closed_loop.py); ``single`` is rclpy's ``SingleThreadedExecutor``. The
+    single-threaded one is used instead of the events one when
+    ``node`` runs on simulated time (``use_sim_time`` true when it is built), when it has guard
+    conditions (which the EventsExecutor refuses: a guard condition created later ends the spin with a
+    RuntimeError), without an EventsExecutor (rclpy before 7.1.4), or where it cannot be made (its
+    constructor enables ``faulthandler`` on stderr, which fails when stderr is not a file). Another
+    value of the variable: one line on stderr, and the default.
+
+    Simulated time: the EventsExecutor's timers manager does not support a ROS clock driven by
+    ``/clock`` (ros2/rclcpp#2457, the design rclpy's port follows). On this machine under load a lockstep
+    controller's timer on simulated time stopped for good: the clock had reached its next period while
+    the manager was not waiting for it, and the simulator's resent clock, the same time again, is no
+    jump that would wake it. The single-threaded executor evaluates every timer on each wait.
 
     Under the EventsExecutor an exception that escapes a callback is logged by rclpy at FATAL, with
     its traceback, before it reaches ``run_node``; it ignores callback groups (one thread anyway).
@@ -142,7 +149,7 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     if choice not in EXECUTORS:
         print(f"{EXECUTOR_ENV}={choice!r} is none of {', '.join(EXECUTORS)}: using events", file=sys.stderr)
         choice = EXECUTORS[0]
-    if choice == "events" and not (node is not None and list(node.guards)):
+    if choice == "events" and not (node is not None and (list(node.guards) or _on_simulated_time(node))):
         try:
             from rclpy.experimental import EventsExecutor
 
@@ -150,6 +157,10 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
         except (ImportError, AttributeError, ValueError, io.UnsupportedOperation):
             pass
     return SingleThreadedExecutor(context=context)
+
+
+def _on_simulated_time(node: Node) -> bool:
+    return bool(node.get_parameter("use_sim_time").value)
 
 
 def spin(executor: Executor, context: Context, stop: threading.Event | None = None) -> None:
