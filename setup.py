@@ -64,12 +64,34 @@ setup(
     # rclpy and the message packages are not here: they come from a ROS 2 Jazzy install (package.xml) or
     # from the ros-jazzy-* wheels that scripts/bootstrap.sh installs; naming them here would make pip
     # install a second ROS over a sourced one.
-    install_requires=["numpy", "scipy", "numba", "pyyaml", "matplotlib", "pymavlink", "rosbags", "pyulog"],
+    # distributed (Dask's scheduler and workers; it brings dask) runs `multirotor campaign` and every batch
+    # of cases; pyarrow writes the campaigns' Parquet results.
+    install_requires=[
+        "numpy",
+        "scipy",
+        "numba",
+        "pyyaml",
+        "matplotlib",
+        "pymavlink",
+        "rosbags",
+        "pyulog",
+        "distributed",
+        "pyarrow",
+    ],
     # setuptools: test/test_packaging.py builds the wheel offline, without pip's build isolation
     # (>= 70.1: bdist_wheel built in, even where a system ROS venv sees an older system setuptools).
-    # mypy and the PyYAML stubs: test/test_typing.py type-checks the package.
+    # mypy and the PyYAML and pyarrow stubs: test/test_typing.py type-checks the package.
     extras_require={
-        "test": ["pytest", "pytest-timeout", "hypothesis", "ruff", "mypy", "types-PyYAML", "setuptools>=70.1"]
+        "test": [
+            "pytest",
+            "pytest-timeout",
+            "hypothesis",
+            "ruff",
+            "mypy",
+            "types-PyYAML",
+            "pyarrow-stubs",
+            "setuptools>=70.1",
+        ]
     },
     zip_safe=True,
     maintainer=_manifest.findtext("maintainer"),

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from multirotor_ros.campaigns.engine import dask_client
 from multirotor_ros.diagnosis.recovery import HoverCase, fly_hovers, run_recovery_campaign
 
 AIRFRAMES = ("x8_octorotor", "hexarotor_f550")
@@ -32,11 +33,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--airframe", action="append", help="airframe config name (repeatable)")
     parser.add_argument("--cases", type=int, default=50, help="cases per airframe")
     parser.add_argument("--seed", type=int, default=1500, help="seed of the first case")
-    parser.add_argument("--processes", type=int, default=2, help="worker processes for the flights")
+    parser.add_argument("--processes", type=int, default=2, help="local Dask workers for the flights")
     parser.add_argument("--summary-only", action="store_true", help="no row per case")
     args = parser.parse_args(argv)
     if args.cases < 1:
         parser.error("--cases must be >= 1")
+    # One local cluster for every batch of flights below (they find it as the current Dask client).
+    with dask_client(workers=args.processes):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     missed = False
     for name in args.airframe or AIRFRAMES:
         result = run_recovery_campaign(name, args.cases, args.seed, args.processes)

@@ -7,10 +7,13 @@ by default, 1 kHz integration, sensor noise on) and answers with the sensors of 
 stack runs its hover controller on the answer and sends the next commands. Each side is its own
 process, as PX4 and the simulator are. Three measurements:
 
-1. physics alone: ``SimulatorPhysics.step`` in a loop, no I/O (the floor for everything else);
-2. MAVLink: ``MavlinkBridge`` (internal physics) and ``Px4LikePeer`` over TCP: HIL_ACTUATOR_CONTROLS
-   in, HIL_SENSOR (+ HIL_GPS, HIL_STATE_QUATERNION when due) out. The bridge's CPU time per step minus
-   the physics' gives the bridge's own per-step cost;
+1. physics alone: ``SimulatorPhysics.advance_to`` in a loop, no I/O (the floor for everything else);
+2. MAVLink: ``MavlinkBridge`` (internal physics) and ``Px4LikePeer`` over TCP, lockstep as PX4's
+   simulator_mavlink runs it (as SIH, PX4's own simulation, steps at PX4's rate): HIL_ACTUATOR_CONTROLS
+   in, HIL_SENSOR (+ HIL_GPS, HIL_STATE_QUATERNION when due) out. Per step, the bridge's answer (the
+   actuator message read to the sensors sent) beside the PX4-like peer's own turn (sensors sent to the
+   next actuator message read), p50 / p95 / p99; the bridge's CPU time per step minus the physics'
+   gives its own per-step cost;
 3. pure ROS: a physics node steps the same core once per ``motor_speed_cmd`` and publishes ``odom`` and
    ``imu``; a controller node runs the same hover controller on them and publishes the next command.
 
@@ -40,7 +43,7 @@ def _physics(airframe_name: str):
     from multirotor_ros.model.airframe import load_airframe
 
     airframe = load_airframe(airframe_name)
-    return airframe, SimulatorPhysics.for_airframe(airframe, STEP_S, seed=1)
+    return airframe, SimulatorPhysics.for_airframe(airframe, seed=1)
 
 
 def _cpu_s() -> float:
@@ -50,10 +53,11 @@ def _cpu_s() -> float:
 
 def physics_alone(airframe_name: str, steps: int) -> dict[str, float]:
     _, physics = _physics(airframe_name)
-    command = np.full(physics.n_rotors, 0.9 * physics.simulator.hover_speed_rad_s)
+    command = np.full(physics.n_rotors, 0.9 * physics.hover_speed_rad_s)
+    step_ns = round(STEP_S * 1e9)
     start, cpu = time.perf_counter(), _cpu_s()
-    for _ in range(steps):
-        physics.step(command, STEP_S)
+    for k in range(1, steps + 1):
+        physics.advance_to(command, k * step_ns)
     wall = time.perf_counter() - start
     return {"steps_per_s": steps / wall, "cpu_ms_per_step": (_cpu_s() - cpu) / steps * 1e3}
 
@@ -68,7 +72,9 @@ def mavlink_loop(airframe_name: str, seconds: float) -> dict[str, float]:
 
     airframe, physics = _physics(airframe_name)
     outputs = BridgeOutputs(lambda speeds, t: None, lambda state: None, lambda setpoint: None)
-    config = BridgeConfig("px4", px4=Px4Config(port=0, step_s=STEP_S), ground_station=None)
+    config = BridgeConfig(
+        "px4", px4=Px4Config(port=0, step_s=STEP_S, measure_timing=True), ground_station=None
+    )
     bridge = MavlinkBridge(config, RotorChannels(airframe), physics, outputs)
     peer = subprocess.Popen(
         [sys.executable, __file__, "--role", "px4-peer", "--port", str(bridge.flight_stack_port),
@@ -85,6 +91,8 @@ def mavlink_loop(airframe_name: str, seconds: float) -> dict[str, float]:
     finally:
         bridge.close()
     result = json.loads(peer.stdout.read().strip().splitlines()[-1])
+    assert bridge.px4 is not None and bridge.px4.times is not None
+    result |= bridge.px4.times.summary_ms()
     result["bridge_cpu_ms_per_step"] = cpu_per_step * 1e3
     result["altitude_m"] = float(physics.state.p_WB_W[2])
     return result
@@ -123,7 +131,7 @@ def ros_physics(airframe_name: str) -> None:
     imu = node.create_publisher(Imu, "imu", 10)
 
     def on_command(message: JointState) -> None:
-        state = physics.step(np.asarray(message.velocity), STEP_S)
+        state = physics.advance_to(np.asarray(message.velocity), physics.t_ns + round(STEP_S * 1e9))
         stamp = stamp_from_ns(round(state.t_s * 1e9))
         imu.publish(imu_message(stamp, "base_link", state.q_WB, state.imu_specific_force_B, state.imu_w_WB_B,
                                 accel_var=0.0, gyro_var=0.0, orientation_var=0.0))  # fmt: skip
@@ -267,9 +275,16 @@ def main(argv: list[str] | None = None) -> int:
         f"  physics alone           {physics['steps_per_s']:8.0f} steps/s  ({physics_ms:.3f} ms CPU per step)"
     )
     each = ", ".join(f"{run['steps_per_s']:.0f}" for run in runs["mavlink_px4_lockstep"])
+    answer = "/".join(
+        f"{median('mavlink_px4_lockstep', f'answer_{p}_ms'):.3f}" for p in ("p50", "p95", "p99")
+    )
+    turn = "/".join(
+        f"{median('mavlink_px4_lockstep', f'flight_stack_{p}_ms'):.3f}" for p in ("p50", "p95", "p99")
+    )
     print(f"  MAVLink (PX4-like peer) {mavlink_rate:8.0f} steps/s  ({mavlink_rate * STEP_S:.2f}x real time; "
           f"rounds: {each}; bridge CPU {bridge_ms:.3f} ms per step, {bridge_ms - physics_ms:.3f} ms of it "
           f"outside the physics)")  # fmt: skip
+    print(f"    per step: bridge answer p50/p95/p99 {answer} ms, PX4-like peer's turn {turn} ms")
     if runs["pure_ros_lockstep"]:
         ros_rate = median("pure_ros_lockstep", "steps_per_s")
         each = ", ".join(f"{run['steps_per_s']:.0f}" for run in runs["pure_ros_lockstep"])

@@ -116,6 +116,66 @@ def test_alarm_clears_when_the_rotor_recovers():
     assert 300 <= history.index(False, 250) <= 330  # cleared 0.5 s after the residual went away
 
 
+def _learnt_detector(airframe, rng, noise_scale=0.01, steps=200, settings=None):
+    """A detector that has learnt residual noise of ``noise_scale`` stopped rotors, and its inputs."""
+    omega = np.full(airframe.n_rotors, Model(airframe).hover_speed_rad_s())
+    signatures = _signatures(airframe, omega)
+    _, scale = stopped_rotor_scales(Model(airframe))
+    detector = FaultDetector(scale, coaxial_partners(airframe), 1, settings)
+    for k in range(steps):
+        detector.update(k * 0.01, 0.01, (noise_scale * scale * rng.standard_normal(4))[None], signatures)
+    return detector, signatures, scale
+
+
+def test_after_a_break_no_alarm_until_the_noise_is_learnt_again_then_a_fault_in_that_window_is_found():
+    """A fault that came with the gap is no noise: it is judged by the noise learnt before, at once."""
+    airframe = load_airframe("hexarotor_f550")
+    rng = np.random.default_rng(6)
+    detector, signatures, scale = _learnt_detector(airframe, rng)
+    detector.relearn()
+    outputs = []
+    for k in range(200, 300):  # rotor 2 at half thrust from the first sample after the break
+        residual = 0.01 * scale * rng.standard_normal(4) - 0.5 * signatures[0, :, 1]
+        outputs.append(detector.update(k * 0.01, 0.01, residual[None], signatures))
+    relearn_steps = round(detector.settings.relearn_s / 0.01)
+    assert all(o.warming_up and not o.alarm[0] for o in outputs[:relearn_steps])
+    # The window showed the fault for longer than the persistence: the alarm comes with the window's end.
+    alarmed = [k for k, o in enumerate(outputs) if o.alarm[0]]
+    assert alarmed and alarmed[0] == relearn_steps
+    assert outputs[-1].rotor[0] == 1
+
+
+def test_relearning_takes_the_noise_after_the_break_when_it_is_larger_and_keeps_the_old_otherwise():
+    airframe = load_airframe("hexarotor_f550")
+    for after, ratio in ((0.05, 5.0), (0.002, 1.0)):
+        detector, signatures, scale = _learnt_detector(airframe, np.random.default_rng(7))
+        before = detector.noise_std.copy()
+        detector.relearn()
+        rng = np.random.default_rng(8)
+        for k in range(200, 260):
+            detector.update(k * 0.01, 0.01, (after * scale * rng.standard_normal(4))[None], signatures)
+        np.testing.assert_allclose(detector.noise_std / before, ratio, rtol=0.35)
+
+
+def test_an_interruption_restarts_the_persistence_and_an_alarm_outlives_a_break():
+    airframe = load_airframe("hexarotor_f550")
+    detector, signatures, scale = _learnt_detector(airframe, np.random.default_rng(9))
+    stopped = -signatures[0, :, 3][None]
+    # Three samples above the threshold, an interruption, three more: never five in a row.
+    for k in range(3):
+        assert not detector.update(2.0 + 0.01 * k, 0.01, stopped, signatures).alarm[0]
+    detector.interrupt()
+    for k in range(3):
+        assert not detector.update(2.1 + 0.01 * k, 0.01, stopped, signatures).alarm[0]
+    for k in range(3, 6):
+        output = detector.update(2.1 + 0.01 * k, 0.01, stopped, signatures)
+    assert output.alarm[0] and output.rotor[0] == 3
+    # In alarm, a break learns nothing from the faulty residual: the alarm stays, no noise is learnt.
+    detector.relearn()
+    output = detector.update(2.5, 0.01, stopped, signatures)
+    assert output.alarm[0] and not output.warming_up
+
+
 def test_coaxial_pair_is_named_when_the_yaw_residual_cannot_separate_it():
     airframe = load_airframe("x8_octorotor")
     # A yaw channel a hundred times noisier than a rotor's drag torque: rotors 1 and 2 look alike.
@@ -146,7 +206,7 @@ def test_reports_are_readable_per_rotor():
     assert reports[0].message == "rotor 1: no fault of its own (rotor 5 is faulty)"
     assert reports[4].values["effectiveness"] == f"{reports[4].effectiveness:.2f}"
     waiting = rotor_reports(None, 6, coaxial_partners(airframe), 0.5)
-    assert all(r.level == "OK" and "no verdict yet" in r.message for r in waiting)
+    assert all(r.level == "OK" and "no verdict yet, waiting for data" in r.message for r in waiting)
 
 
 def test_detection_settings_refuse_nonsense():

@@ -4,36 +4,21 @@
 under test, along multirotor_ros.ident.excitation's schedule, and caches the log for the whole session
 (the tests only read logs). Noise levels: ``low`` is the airframe's sensor set (seed 1's IMU, motion
 capture, ESC speeds, with the IMU's biases), ``high`` multiplies every white noise (not the biases) by
-NOISE_HIGH, ``none`` is noise-free.
+the sweep's NOISE_HIGH, ``none`` is noise-free.
 """
 
-import dataclasses
 import functools
 from pathlib import Path
 
 import numpy as np
 
-from multirotor_ros.ident.excitation import excitation_setpoints
+from multirotor_ros.discrepancy.sweep import hidden_effect_flight
 from multirotor_ros.io.flight_log import FlightLog, write_flight_log
-from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.simulation.sensors import airframe_sensor_config
-
-NOISE_HIGH = 4.0
-PHYSICS_RATE_HZ = 500.0
 
 
 def effect(effect_id: str, **parameters: float) -> tuple:
     """A hashable effect spec for :func:`flight`."""
     return (effect_id, tuple(sorted(parameters.items())))
-
-
-def _airframe_with_noise(name: str, noise: str):
-    airframe = load_airframe(name)
-    if noise != "high":
-        return airframe
-    config = airframe_sensor_config(airframe).as_dict()
-    louder = {k: v * NOISE_HIGH for k, v in config.items() if "noise" in k}
-    return dataclasses.replace(airframe, sections={**airframe.sections, "sensors": {**config, **louder}})
 
 
 @functools.cache
@@ -47,25 +32,12 @@ def flight(
 ) -> FlightLog:
     """The log of a closed-loop flight of ``airframe`` with true ``effects`` (None: the airframe's own).
 
-    Effects are given as effect(...) tuples so that the call can be cached.
+    Effects are given as effect(...) tuples so that the call can be cached; the flight is the sweep's
+    (multirotor_ros.discrepancy.sweep.hidden_effect_flight).
     """
-    from multirotor_ros.simulation.flight import simulate_flight
-
     specs = None if effects is None else [{"id": effect_id, **dict(params)} for effect_id, params in effects]
-    schedule = (
-        np.array(setpoints)
-        if setpoints is not None
-        else excitation_setpoints(duration_s, np.random.default_rng(seed))
-    )
-    return simulate_flight(
-        _airframe_with_noise(airframe, noise),
-        specs,
-        setpoints=schedule,
-        duration_s=duration_s,
-        rng=np.random.default_rng(1000 + seed),
-        physics_rate_hz=PHYSICS_RATE_HZ,
-        noise=noise != "none",
-    )
+    schedule = None if setpoints is None else np.array(setpoints)
+    return hidden_effect_flight(airframe, specs, duration_s, seed, noise, schedule)
 
 
 def flight_csv(directory: Path, name: str, log: FlightLog) -> Path:

@@ -14,11 +14,18 @@ import pytest
 from multirotor_ros.frames import enu_to_ned, flu_to_frd, quat_enu_flu_to_ned_frd
 from multirotor_ros.mavlink.actuators import RotorChannels
 from multirotor_ros.mavlink.ardupilot import ArduPilotConfig, encode_servo_packet
-from multirotor_ros.mavlink.bridge import BridgeConfig, BridgeOutputs, BridgeThread, MavlinkBridge
+from multirotor_ros.mavlink.bridge import (
+    MAX_DEFERRED,
+    BridgeConfig,
+    BridgeOutputs,
+    BridgeThread,
+    MavlinkBridge,
+)
 from multirotor_ros.mavlink.peers import ArduPilotLikePeer, HoverController
 from multirotor_ros.mavlink.physics import SimulatorPhysics
 from multirotor_ros.mavlink.vehicle import VehicleState
 from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.integrator import Integrator
 
 FRAME_RATE_HZ = 250
 
@@ -47,7 +54,7 @@ def quad():
 def ardupilot_bridge(quad) -> Iterator[tuple[MavlinkBridge, dict[int, VehicleState]]]:
     airframe, channels = quad
     states: dict[int, VehicleState] = {}
-    physics = SimulatorPhysics.for_airframe(airframe, 1.0 / FRAME_RATE_HZ, seed=2)
+    physics = SimulatorPhysics.for_airframe(airframe, seed=2)
     config = BridgeConfig(
         "ardupilot", ardupilot=ArduPilotConfig(port=0, peer_timeout_s=0.5), ground_station=None
     )
@@ -56,6 +63,13 @@ def ardupilot_bridge(quad) -> Iterator[tuple[MavlinkBridge, dict[int, VehicleSta
     )
     with BridgeThread(MavlinkBridge(config, channels, physics, outputs)) as bridge:
         yield bridge, states
+
+
+def hover_peer(bridge: MavlinkBridge, rotor_channels: RotorChannels, **options: float) -> ArduPilotLikePeer:
+    """A SITL-like peer at the test rate, flying the quad to a hover on the bridge's port."""
+    return ArduPilotLikePeer(
+        bridge.flight_stack_port, HoverController(rotor_channels), frame_rate_hz=FRAME_RATE_HZ, **options
+    )
 
 
 def raw_socket() -> socket.socket:
@@ -70,7 +84,7 @@ def test_ardupilot_like_peer_hovers_ten_seconds_in_lockstep_and_the_json_agrees_
 ):
     bridge, states = ardupilot_bridge
     _, channels = quad
-    peer = ArduPilotLikePeer(bridge.flight_stack_port, HoverController(channels), frame_rate_hz=FRAME_RATE_HZ)
+    peer = hover_peer(bridge, channels)
     try:
         record = peer.fly(10.0)
         # The raw line, as SITL's parser reads it: no space after a colon, vectors right after it.
@@ -108,7 +122,7 @@ def test_ardupilot_like_peer_hovers_ten_seconds_in_lockstep_and_the_json_agrees_
 def test_a_repeated_frame_gets_the_same_answer_without_a_step(ardupilot_bridge, quad):
     bridge, _ = ardupilot_bridge
     _, channels = quad
-    peer = ArduPilotLikePeer(bridge.flight_stack_port, HoverController(channels), frame_rate_hz=FRAME_RATE_HZ)
+    peer = hover_peer(bridge, channels)
     try:
         first = peer.exchange([1000] * 16)
         again = peer.exchange([1000] * 16, frame_count=peer.frame_count)
@@ -117,15 +131,13 @@ def test_a_repeated_frame_gets_the_same_answer_without_a_step(ardupilot_bridge, 
         peer.close()
     assert again == first
     assert after["timestamp"] == pytest.approx(first["timestamp"] + 1.0 / FRAME_RATE_HZ)
-    assert bridge.refusals.counts == {"duplicate frame": 1}
+    assert bridge.ardupilot.repeated_frames == 1 and bridge.refusals.total == 0
 
 
 def test_a_frame_count_going_back_means_sitl_restarted_and_the_vehicle_is_reset(ardupilot_bridge, quad):
     bridge, _ = ardupilot_bridge
     _, channels = quad
-    peer = ArduPilotLikePeer(
-        bridge.flight_stack_port, HoverController(channels), frame_rate_hz=FRAME_RATE_HZ, arm_after_s=0.1
-    )
+    peer = hover_peer(bridge, channels, arm_after_s=0.1)
     try:
         flying = peer.fly(2.0)
         assert -flying.replies[-1]["position"][2] > 1.0
@@ -141,13 +153,7 @@ def test_a_frame_count_going_back_means_sitl_restarted_and_the_vehicle_is_reset(
 def test_the_32_channel_packet_drives_the_rotors_too(ardupilot_bridge, quad):
     bridge, _ = ardupilot_bridge
     _, channels = quad
-    peer = ArduPilotLikePeer(
-        bridge.flight_stack_port,
-        HoverController(channels),
-        frame_rate_hz=FRAME_RATE_HZ,
-        channels=32,
-        arm_after_s=0.1,
-    )
+    peer = hover_peer(bridge, channels, channels=32, arm_after_s=0.1)
     try:
         record = peer.fly(1.5)
     finally:
@@ -190,12 +196,8 @@ def test_bad_packets_and_a_second_sitl_are_refused_and_counted(ardupilot_bridge,
 def test_after_a_silence_another_address_takes_over(ardupilot_bridge, quad):
     bridge, _ = ardupilot_bridge
     _, channels = quad
-    first = ArduPilotLikePeer(
-        bridge.flight_stack_port, HoverController(channels), frame_rate_hz=FRAME_RATE_HZ
-    )
-    second = ArduPilotLikePeer(
-        bridge.flight_stack_port, HoverController(channels), frame_rate_hz=FRAME_RATE_HZ
-    )
+    first = hover_peer(bridge, channels)
+    second = hover_peer(bridge, channels)
     try:
         first.fly(0.2)
         time.sleep(0.6)  # longer than peer_timeout_s
@@ -206,3 +208,117 @@ def test_after_a_silence_another_address_takes_over(ardupilot_bridge, quad):
         second.close()
     assert reply["timestamp"] > 0.2  # same flight, new address
     assert bridge.refusals.total == 0
+
+
+def test_a_sitl_restarted_on_a_new_port_takes_over_at_once(ardupilot_bridge, quad):
+    bridge, _ = ardupilot_bridge
+    _, channels = quad
+    first = hover_peer(bridge, channels)
+    restarted = hover_peer(bridge, channels)
+    try:
+        first.fly(0.5)
+        reply = restarted.exchange([1000] * 16)  # frame 1 from a new address, at once
+    finally:
+        first.close()
+        restarted.close()
+    assert reply["timestamp"] == pytest.approx(1.0 / FRAME_RATE_HZ)  # the vehicle reset for the new SITL
+    assert bridge.ardupilot.restarts == 1 and bridge.refusals.total == 0
+
+
+@pytest.mark.parametrize("frame_rate_hz", [400, 1200, 2000])
+def test_every_frame_advances_exactly_one_period_whatever_the_rate(quad, frame_rate_hz):
+    airframe, channels = quad
+    config = BridgeConfig("ardupilot", ardupilot=ArduPilotConfig(port=0), ground_station=None)
+    outputs = BridgeOutputs(lambda s, t: None, lambda state: None, lambda sp: None)
+    physics = SimulatorPhysics.for_airframe(airframe, seed=2)  # 1 kHz physics: 1/400 s takes 3 sub-steps
+    with BridgeThread(MavlinkBridge(config, channels, physics, outputs)) as bridge:
+        peer = ArduPilotLikePeer(
+            bridge.flight_stack_port, HoverController(channels), frame_rate_hz=frame_rate_hz
+        )
+        try:
+            record = peer.fly(1.0)
+        finally:
+            peer.close()
+    stamps = np.array([reply["timestamp"] for reply in record.replies])
+    np.testing.assert_allclose(np.diff(stamps), 1.0 / frame_rate_hz, atol=1e-9)  # never 0, never 2 steps
+    assert stamps[-1] * frame_rate_hz == pytest.approx(round(stamps[-1] * frame_rate_hz), abs=1e-6)
+
+
+@pytest.mark.parametrize(("dt_ns", "substeps"), [(2_500_000, 3), (833_333, 1), (500_000, 1), (4_000_000, 4)])
+def test_a_frame_is_integrated_in_equal_substeps_no_longer_than_the_physics_step(quad, dt_ns, substeps):
+    airframe, _ = quad
+    physics = SimulatorPhysics.for_airframe(airframe, noise=False)
+    hover = np.full(4, 1.02 * physics.hover_speed_rad_s)  # climbing: the state changes at every sub-step
+    physics.advance_to(hover, 1_000_000)
+    x_before = physics.simulator.x.copy()
+    state = physics.advance_to(hover, 1_000_000 + dt_ns)
+    reference = Integrator(physics.simulator.model, dt_ns / substeps * 1e-9, ground_height_m=0.0)
+    x_expected = reference.advance(1e-3, x_before, physics.simulator.commands_rad_s, substeps)
+    np.testing.assert_array_equal(physics.simulator.x, x_expected)
+    assert state.t_s == pytest.approx(1e-3 + dt_ns * 1e-9, abs=1e-12) and physics.t_ns == 1_000_000 + dt_ns
+
+
+@pytest.mark.parametrize("frame_rate_hz", [400, 1200])
+def test_the_imu_is_sampled_at_the_frame_rate_with_that_rates_white_noise(quad, frame_rate_hz):
+    airframe, _ = quad
+    physics = SimulatorPhysics.for_airframe(airframe, seed=3)
+    resting = np.zeros(4)
+    gyro = [physics.advance_to(resting, round(k * 1e9 / frame_rate_hz)).imu_w_WB_B for k in range(1, 3001)]
+    config = physics.imu_config
+    assert config.imu_rate_hz == frame_rate_hz
+    expected = config.gyro_noise_density_rad_s_sqrt_hz * np.sqrt(frame_rate_hz)  # density x root of the rate
+    assert config.gyro_sample_std_rad_s == pytest.approx(expected)
+    # At rest the gyro reads its bias (which hardly walks in 3,000 samples) plus that white noise.
+    np.testing.assert_allclose(np.std(gyro, axis=0), expected, rtol=0.1)
+
+
+def test_deferred_work_waits_until_every_waiting_frame_is_answered(quad):
+    # The node publishes to ROS through defer(): two frames already queued are both answered first.
+    airframe, channels = quad
+    events: list[str] = []
+    bridge: MavlinkBridge
+
+    def on_state(state: VehicleState) -> None:
+        bridge.defer(lambda: events.append(f"published {state.t_s:.3f}"))
+
+    config = BridgeConfig("ardupilot", ardupilot=ArduPilotConfig(port=0), ground_station=None)
+    outputs = BridgeOutputs(lambda s, t: None, on_state, lambda sp: None)
+    bridge = MavlinkBridge(config, channels, SimulatorPhysics.for_airframe(airframe), outputs)
+    sitl = raw_socket()
+    try:
+        session = bridge.ardupilot
+        assert session is not None
+        send = session.endpoint.send
+        session.endpoint.send = lambda data, address: events.append("answered") or send(data, address)
+        for frame in (1, 2):
+            sitl.sendto(
+                encode_servo_packet(FRAME_RATE_HZ, frame, [1000] * 16),
+                ("127.0.0.1", bridge.flight_stack_port),
+            )
+        time.sleep(0.05)  # both datagrams queued before the loop looks
+        bridge.spin_once(0.5)
+        assert events == ["answered", "answered", "published 0.004", "published 0.008"]
+    finally:
+        sitl.close()
+        bridge.close()
+
+
+def test_deferred_work_is_done_even_while_input_keeps_waiting(quad):
+    airframe, channels = quad
+    config = BridgeConfig("ardupilot", ardupilot=ArduPilotConfig(port=0), ground_station=None)
+    outputs = BridgeOutputs(lambda s, t: None, lambda state: None, lambda sp: None)
+    bridge = MavlinkBridge(config, channels, SimulatorPhysics.for_airframe(airframe), outputs)
+    busy, feeder = socket.socketpair()
+    try:
+        feeder.send(b"x")  # never read: the selector always has input waiting
+        bridge._register(busy, lambda: None)
+        done: list[int] = []
+        for k in range(MAX_DEFERRED + 4):
+            bridge.defer(lambda k=k: done.append(k))
+        bridge.spin_once(0.0)
+        assert done == [0, 1, 2, 3]  # the oldest, down to the bound on what may wait
+    finally:
+        bridge._unregister(busy)
+        busy.close()
+        feeder.close()
+        bridge.close()

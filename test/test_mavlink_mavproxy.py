@@ -89,7 +89,7 @@ def test_mavproxy_sees_the_vehicle_and_only_a_signed_setpoint_moves_it(tmp_path)
 
     gcs_port = free_udp_port()
     config = BridgeConfig("px4", px4=Px4Config(port=0), ground_station=GroundStationConfig(port=gcs_port))
-    physics = SimulatorPhysics.for_airframe(airframe, 0.004, seed=5)
+    physics = SimulatorPhysics.for_airframe(airframe, seed=5)
     bridge = MavlinkBridge(
         config, channels, physics, BridgeOutputs(lambda s, t: None, lambda s: None, fly_to),
         signing=SigningPolicy(parse_signing_key(PASSPHRASE)),

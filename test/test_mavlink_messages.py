@@ -1,11 +1,15 @@
-"""Message schedules and SET_MESSAGE_INTERVAL answers, on a clock the test controls."""
+"""The state in NED/FRD, message schedules and SET_MESSAGE_INTERVAL answers, on a clock the test controls."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from multirotor_ros.frames import enu_to_ned, flu_to_frd, quat_enu_flu_to_ned_frd
 from multirotor_ros.mavlink.messages import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
@@ -13,9 +17,11 @@ from multirotor_ros.mavlink.messages import (
     REQUEST_RATE_BOUNDS_HZ,
     MessageSchedule,
     heading_cdeg,
+    ned_view,
     time_usec,
     wire_value,
 )
+from multirotor_ros.mavlink.vehicle import VehicleState
 
 GPS = 113
 HEARTBEAT = 0
@@ -95,3 +101,38 @@ def test_wire_units():
 )
 def test_wire_value_fits_every_field_type(value, wire_type, expected):
     assert wire_value(value, wire_type) == expected
+
+
+def vectors(size: int, finite: bool = True):
+    return st.lists(
+        st.floats(-1e6, 1e6) if finite else st.floats(allow_nan=True, allow_infinity=True),
+        min_size=size,
+        max_size=size,
+    ).map(np.array)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # numpy on infinities (inf * 0 in a product): expected
+@settings(max_examples=60)
+@given(st.data())
+def test_ned_view_is_frames_py_applied_to_each_vector(data):
+    finite = data.draw(st.booleans())
+    q = (
+        data.draw(vectors(4).filter(lambda q: np.linalg.norm(q) > 1e-3))
+        if finite
+        else data.draw(vectors(4, False))
+    )
+    state = VehicleState(
+        1.5, data.draw(vectors(3, finite)), data.draw(vectors(3)), q / np.linalg.norm(q) if finite else q,
+        data.draw(vectors(3)), np.zeros(4), data.draw(vectors(3)), data.draw(vectors(3)),
+    )  # fmt: skip
+    view = ned_view(state)
+    np.testing.assert_allclose(view.p_NED_m, enu_to_ned(state.p_WB_W), rtol=1e-15, atol=1e-9)
+    np.testing.assert_allclose(view.v_NED_m_s, enu_to_ned(state.v_WB_W), rtol=1e-15, atol=1e-9)
+    # One product instead of a sum then a product: the last bit may differ.
+    np.testing.assert_allclose(view.q_NED_FRD, quat_enu_flu_to_ned_frd(state.q_WB), rtol=1e-14, atol=1e-12)
+    for ours, theirs in [
+        (view.w_FRD_rad_s, state.w_WB_B),
+        (view.imu_accel_FRD_m_s2, state.imu_specific_force_B),
+        (view.imu_gyro_FRD_rad_s, state.imu_w_WB_B),
+    ]:
+        np.testing.assert_allclose(ours, flu_to_frd(theirs), rtol=1e-15, atol=1e-9)

@@ -182,14 +182,24 @@ def test_ground_station_only_forwards_the_simulator_topics_and_turns_signed_setp
     assert "refused input: unsigned command" in node.log_text()
 
 
-def test_bad_parameters_stop_the_node_with_a_clear_message(tmp_path):
+@pytest.mark.parametrize(
+    ("parameters", "message"),
+    [
+        ({"rotor_channels": "1,2,3"}, "rotor_channels has 3 entries, quad_x has 4 rotors"),
+        # Channel k for rotor k: what flipped ArduCopter's quad at lift-off; refused with each reason.
+        ({"rotor_channels": "1,2,3,4", "flight_stack": "ardupilot"},
+         "rotor_channels 1,2,3,4 would flip quad_x on ArduPilot QUAD X (FRAME_CLASS 1, FRAME_TYPE 1): "
+         "channel 2 is motor 2 (rear-left, ccw) but drives rotor_2 (rear-right, cw)"),
+    ],
+)  # fmt: skip
+def test_bad_parameters_stop_the_node_with_a_clear_message(tmp_path, parameters, message):
     process = NodeProcess(
         "mavlink_bridge",
         tmp_path / "bad.log",
-        parameters={"airframe": "quad_x", "rotor_channels": "1,2,3", "gcs_enabled": False},
+        parameters={"airframe": "quad_x", "gcs_enabled": False, **parameters},
     )
     assert process.process.wait(60.0) == 2
-    assert "rotor_channels has 3 entries, quad_x has 4 rotors" in process.log_text()
+    assert message in process.log_text()
 
 
 @pytest.mark.slow

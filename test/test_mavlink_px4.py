@@ -40,6 +40,13 @@ class Recorded:
             lambda setpoint: None,
         )
 
+    def state_at(self, time_usec: int, timeout_s: float = 2.0) -> VehicleState:
+        """The state handed out at ``time_usec`` (the bridge hands it out just after its answer)."""
+        deadline = time.monotonic() + timeout_s
+        while time_usec not in self.states and time.monotonic() < deadline:
+            time.sleep(0.001)
+        return self.states[time_usec]
+
 
 @pytest.fixture(scope="module")
 def quad():
@@ -49,7 +56,7 @@ def quad():
 
 def px4_bridge_thread(quad, recorded: Recorded, **config: float) -> BridgeThread:
     airframe, channels = quad
-    physics = SimulatorPhysics.for_airframe(airframe, STEP_S, seed=4)
+    physics = SimulatorPhysics.for_airframe(airframe, seed=4)
     bridge_config = BridgeConfig("px4", px4=Px4Config(port=0, step_s=STEP_S, **config), ground_station=None)
     return BridgeThread(MavlinkBridge(bridge_config, channels, physics, recorded.outputs()))
 
@@ -59,6 +66,11 @@ def px4_bridge(quad) -> Iterator[tuple[MavlinkBridge, Recorded]]:
     recorded = Recorded()
     with px4_bridge_thread(quad, recorded) as bridge:
         yield bridge, recorded
+
+
+def armed_peer(bridge: MavlinkBridge, channels: RotorChannels) -> Px4LikePeer:
+    """A PX4-like peer on the bridge's port that arms after 0.2 s and flies the quad to a hover."""
+    return Px4LikePeer(bridge.flight_stack_port, HoverController(channels), arm_after_s=0.2)
 
 
 def mean_specific_force_frd(sensors: list) -> np.ndarray:
@@ -91,7 +103,7 @@ def test_px4_like_peer_hovers_ten_seconds_in_lockstep_and_everything_agrees_with
     assert resting[0].pressure_alt == pytest.approx(Home().altitude_m, abs=0.01)
 
     # Hovering on the peer's own controller at 2 m.
-    final = recorded.states[times[-1]]
+    final = recorded.state_at(times[-1])
     assert final.p_WB_W[2] == pytest.approx(2.0, abs=0.15)
     assert np.linalg.norm(final.v_WB_W) < 0.2
     assert record.sensors[-1].pressure_alt == pytest.approx(Home().altitude_m + final.p_WB_W[2], abs=0.01)
@@ -161,7 +173,7 @@ def test_set_message_interval_answers(px4_bridge, quad):
 def test_bad_input_mid_flight_is_dropped_and_counted_and_the_flight_goes_on(px4_bridge, quad):
     bridge, recorded = px4_bridge
     _, channels = quad
-    peer = Px4LikePeer(bridge.flight_stack_port, HoverController(channels), arm_after_s=0.2)
+    peer = armed_peer(bridge, channels)
     try:
         peer.fly(1.0)
         mav = peer.mav
@@ -195,14 +207,14 @@ def test_bad_input_mid_flight_is_dropped_and_counted_and_the_flight_goes_on(px4_
     # Lockstep kept going (refused actuator messages still step, or PX4's clock would stop) and the
     # vehicle still hovers.
     assert record.sensors[-1].time_usec >= 3_000_000 and t_before < 3.0
-    assert bridge.simulation.latest.p_WB_W[2] == pytest.approx(2.0, abs=0.3)
+    assert recorded.state_at(record.sensors[-1].time_usec).p_WB_W[2] == pytest.approx(2.0, abs=0.3)
     assert len(recorded.states) >= 3.0 / STEP_S
 
 
 def test_disconnect_freezes_the_vehicle_and_a_reconnecting_peer_continues_the_flight(px4_bridge, quad):
     bridge, _ = px4_bridge
     _, channels = quad
-    first = Px4LikePeer(bridge.flight_stack_port, HoverController(channels), arm_after_s=0.2)
+    first = armed_peer(bridge, channels)
     first.fly(2.5)
     first.close()
     deadline = time.monotonic() + 2.0
@@ -308,7 +320,7 @@ def test_external_physics_forwards_states_and_publishes_commands(quad):
 def test_a_corrupt_header_swallowing_actuator_messages_does_not_deadlock_lockstep(quad):
     _, channels = quad
     with px4_bridge_thread(quad, Recorded(), stall_timeout_s=0.3) as bridge:
-        peer = Px4LikePeer(bridge.flight_stack_port, HoverController(channels), arm_after_s=0.2)
+        peer = armed_peer(bridge, channels)
         try:
             peer.fly(0.5)
             climbing_from_m = bridge.simulation.latest.p_WB_W[2]
@@ -322,3 +334,46 @@ def test_a_corrupt_header_swallowing_actuator_messages_does_not_deadlock_lockste
         assert bridge.refusals.counts.get("bad CRC", 0) + bridge.refusals.counts.get("corrupt bytes", 0) >= 1
         assert record.sensors[-1].time_usec >= 1_500_000
         assert bridge.simulation.latest.p_WB_W[2] > climbing_from_m + 0.3  # still climbing to its 2 m
+
+
+def test_lockstep_at_400_hz_advances_exactly_one_step_per_actuator_message(quad):
+    # 2.5 ms steps on 1 kHz physics: three sub-steps of 0.833 ms, not steps of 2 and 3 ms in turn.
+    recorded = Recorded()
+    airframe, channels = quad
+    physics = SimulatorPhysics.for_airframe(airframe, seed=4)
+    config = BridgeConfig("px4", px4=Px4Config(port=0, step_s=0.0025), ground_station=None)
+    with BridgeThread(MavlinkBridge(config, channels, physics, recorded.outputs())) as bridge:
+        peer = armed_peer(bridge, channels)
+        try:
+            record = peer.fly(2.0)
+        finally:
+            peer.close()
+    times = np.array([s.time_usec for s in record.sensors])
+    assert np.all(np.diff(times[times > 100_000]) == 2500)
+    assert bridge.refusals.total == 0
+
+
+def test_a_command_computed_on_an_older_sensor_is_held_without_moving_time(px4_bridge, quad):
+    bridge, _ = px4_bridge
+    _, channels = quad
+    peer = armed_peer(bridge, channels)
+    try:
+        peer.fly(0.5)
+        newest = peer.record.sensors[-1].time_usec
+        controls = channels.px4_controls_for_speeds(np.full(4, 600.0)).tolist()
+        # Answers to two sensors ago (PX4 still busy with one the stall rule sent) and from the future.
+        peer.mav.send(peer.mav.hil_actuator_controls_encode(newest - 4000, controls, 129, FLAG_LOCKSTEP))
+        deadline = time.monotonic() + 2.0
+        while bridge.px4.late_commands == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert bridge.simulation.latest.t_s * 1e6 == pytest.approx(newest + 4000)  # the answer to newest only
+        peer.mav.send(peer.mav.hil_actuator_controls_encode(newest + 10**9, controls, 129, FLAG_LOCKSTEP))
+        record = peer.fly(1.0)
+    finally:
+        peer.close()
+    # The future stamp counts as answering the newest sensor (one step), which makes the peer's own answer
+    # to that sensor, read after, a second late one.
+    assert bridge.px4.late_commands == 2
+    assert bridge.refusals.counts == {"actuator stamp ahead": 1}
+    times = np.array([s.time_usec for s in record.sensors])
+    assert np.all(np.diff(times[times > 100_000]) == 4000)  # one step per sensor, none skipped or doubled

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 
 from multirotor_ros.model.airframe import GRAVITY_M_S2, load_airframe
@@ -72,7 +73,7 @@ EXAMPLES = readme_examples((REPOSITORY / "README.md").read_text(encoding="utf-8"
 
 def _is_slow(example: Example) -> bool:
     # Blocks that simulate or search take seconds: marked slow, they still run in `make test`.
-    return any(example.invocations(s) for s in ("simulate", "discrepancy", "identify"))
+    return any(example.invocations(s) for s in ("simulate", "discrepancy", "identify", "campaign"))
 
 
 EXAMPLE_PARAMETERS = [
@@ -106,6 +107,8 @@ def test_readme_example_runs_and_its_output_makes_sense(example: Example, tmp_pa
         _check_discrepancy_finds_what_was_hidden(example, tmp_path, arguments)
     for arguments in example.invocations("airframe"):
         _check_airframe_hovers(result.stdout, arguments[0])
+    for arguments in example.invocations("campaign"):
+        _check_campaign_stored_every_case(tmp_path / _option(arguments, "--out"))
 
 
 def _check_discrepancy_finds_what_was_hidden(example: Example, directory: Path, arguments: list[str]) -> None:
@@ -117,6 +120,19 @@ def _check_discrepancy_finds_what_was_hidden(example: Example, directory: Path, 
     for effect_spec in hidden.values():
         for name, value in effect_spec.items():
             assert report["parameters"][name] == pytest.approx(value, rel=PARAMETER_TOLERANCE), name
+
+
+def _check_campaign_stored_every_case(out: Path) -> None:
+    # Exit status 0 says no case failed; each case has its row on disk and the page names them all.
+    cases = json.loads((out / "campaign.json").read_text(encoding="utf-8"))["cases"]
+    keys = [
+        row["key"]
+        for part in (out / "results").glob("part-*.parquet")
+        for row in pq.read_table(part).to_pylist()
+    ]
+    assert sorted(keys) == sorted(case["key"] for case in cases)
+    page = (out / "summary.html").read_text(encoding="utf-8")
+    assert all(case["key"] in page for case in cases)
 
 
 def _check_airframe_hovers(stdout: str, name: str) -> None:

@@ -14,44 +14,37 @@ Requirements scored per case (issue 4): a stopped rotor (effectiveness < 0.05) d
 the issue does not bound) within 1.0 s, a bound of this module's own. The isolated rotor is the one named at
 the first alarm. A false alarm is any alarm before the onset. :func:`nominal_check` flies without
 fault to count false alarms over a long flight.
+
+The identifier node does not replay batches: it runs :class:`~multirotor_ros.diagnosis.monitor.
+FlightMonitor` on messages, which a loaded machine loses (:class:`Load`). :func:`monitor_replay` feeds
+one flight to a monitor message by message with the lost ones left out, and :func:`loaded_check`
+scores that path: false alarms on fault-free flights from the ground (take-off, waypoints, landing)
+with lost messages, and fault detection with and without them.
 """
 
 from __future__ import annotations
 
 import math
-import multiprocessing
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from multirotor_ros.campaigns.engine import map_on_dask
 from multirotor_ros.diagnosis.detection import DetectionSettings
 from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser
 from multirotor_ros.diagnosis.residuals import ObserverSettings
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.model import Model
-from multirotor_ros.model.rotation import BoolArray, FloatArray
+from multirotor_ros.model.rotation import BoolArray, FloatArray, matrix_to_quat
 from multirotor_ros.model.state import StateBatch
 
 HOVER_HEIGHT_M = 3.0
-
-
-def map_in_processes[Job, Result](
-    function: Callable[[Job], Result], jobs: Sequence[Job], processes: int = 1
-) -> list[Result]:
-    """``[function(job) for job in jobs]``, in ``processes`` worker processes when > 1.
-
-    ``function`` must be a module-level function (the workers import it).
-    """
-    if processes <= 1:
-        return [function(job) for job in jobs]
-    # Fresh interpreters, not forks: a fork of a process whose numba kernels already ran on OpenMP
-    # threads (or that holds rclpy's threads, as a test session may) is unsafe and dies in the child.
-    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(function, jobs))
+# Flights from the ground (fly_case): take-off this long after the start, landing this long before the end.
+TAKE_OFF_S = 1.0
+LANDING_S = 6.0
 
 
 def required_delay_s(effectiveness: float) -> float:
@@ -136,12 +129,26 @@ def waypoints(
 
 
 def fly_case(
-    airframe: Airframe, case: FaultCase, duration_s: float, waypoint_every_s: float = 4.0
+    airframe: Airframe,
+    case: FaultCase,
+    duration_s: float,
+    waypoint_every_s: float = 4.0,
+    from_the_ground: bool = False,
 ) -> FlightLog:
-    """The closed-loop flight of one case (module docstring)."""
+    """The closed-loop flight of one case (module docstring).
+
+    ``from_the_ground``: it starts on the ground instead of hovering, takes off after
+    ``TAKE_OFF_S``, and is sent back to the ground ``LANDING_S`` before the end.
+    """
     from multirotor_ros.simulation import simulate_flight
 
     rng = np.random.default_rng(case.seed)
+    setpoints = waypoints(rng, duration_s, waypoint_every_s)
+    if from_the_ground:
+        setpoints = [(TAKE_OFF_S, 0.0, 0.0, HOVER_HEIGHT_M, 0.0)] + [
+            row for row in setpoints if TAKE_OFF_S + waypoint_every_s <= row[0] < duration_s - LANDING_S
+        ]
+        setpoints.append((duration_s - LANDING_S, 0.0, 0.0, 0.0, 0.0))
     effects = list(airframe.effect_specs())
     if case.motor:
         effects.append(
@@ -155,10 +162,10 @@ def fly_case(
     return simulate_flight(
         airframe,
         effects,
-        setpoints=waypoints(rng, duration_s, waypoint_every_s),
+        setpoints=setpoints,
         duration_s=duration_s,
         rng=rng,
-        initial_position_m=(0.0, 0.0, HOVER_HEIGHT_M),
+        initial_position_m=(0.0, 0.0, 0.0 if from_the_ground else HOVER_HEIGHT_M),
     )
 
 
@@ -273,15 +280,25 @@ def replay(
     )
 
 
-def _fly(arguments: tuple[Airframe, FaultCase, float]) -> FlightLog:
-    return fly_case(*arguments)
+def _fly(arguments: tuple[Airframe, FaultCase, float, bool]) -> FlightLog:
+    airframe, case, duration_s, from_the_ground = arguments
+    return fly_case(airframe, case, duration_s, from_the_ground=from_the_ground)
 
 
 def fly_all(
-    airframe: Airframe, cases: Sequence[FaultCase], duration_s: float, processes: int = 1
+    airframe: Airframe,
+    cases: Sequence[FaultCase],
+    duration_s: float,
+    processes: int = 1,
+    from_the_ground: bool = False,
 ) -> list[FlightLog]:
-    """Fly every case (in ``processes`` worker processes when > 1)."""
-    return map_in_processes(_fly, [(airframe, case, duration_s) for case in cases], processes)
+    """Fly every case (:func:`fly_case`) on Dask.
+
+    On the current client's cluster, else on ``processes`` local workers when > 1
+    (:func:`~multirotor_ros.campaigns.engine.map_on_dask`).
+    """
+    jobs = [(airframe, case, duration_s, from_the_ground) for case in cases]
+    return map_on_dask(_fly, jobs, processes)
 
 
 @dataclass(frozen=True)
@@ -440,4 +457,179 @@ def nominal_check(
         float(trace.max_loss_ratio.max()),
         flown - started,
         replayed - flown,
+    )
+
+
+# ------------------------------------------------------------------ the node's path, on a loaded machine
+
+
+@dataclass(frozen=True)
+class Load:
+    """A loaded machine as the identifier sees it: runs of lost messages on each input stream.
+
+    Each message starts a run of lost ones with probability ``run_rate``; a run is 1 to ``max_run``
+    messages long, uniformly. The state and the rotor-speed streams lose theirs independently (two
+    publishers, two queues).
+    """
+
+    run_rate: float
+    max_run: int
+
+    def kept(self, n: int, rng: np.random.Generator) -> BoolArray:
+        """(n,) which of n messages in a row arrive."""
+        kept = np.ones(n, dtype=bool)
+        k = 0
+        while k < n:
+            if rng.random() < self.run_rate:
+                run = int(rng.integers(1, self.max_run + 1))
+                kept[k : k + run] = False
+                k += run
+            k += 1
+        return kept
+
+
+@dataclass(frozen=True)
+class MonitorTrace:
+    """One flight through the identifier's monitor, as the node runs it."""
+
+    alarms: tuple[tuple[float, int], ...]  # each alarm raised: (t [s of the flight], rotor 1..N)
+    judged_share: float  # share of the flight's rows the detector judged (not lost, held or learning)
+    max_loss_ratio: float  # largest loss estimate over its threshold among them (0: none)
+    gaps: int  # gaps that restarted the observer
+
+    def first_alarm_after(self, t_s: float) -> tuple[float, int] | None:
+        """The first alarm raised at or after ``t_s``."""
+        return next((alarm for alarm in self.alarms if alarm[0] >= t_s), None)
+
+    def alarms_before(self, t_s: float) -> int:
+        """How many alarms were raised before ``t_s``."""
+        return sum(alarm[0] < t_s for alarm in self.alarms)
+
+
+# Stamps of the replayed messages: the flight's time after this origin, as on a clock started long ago.
+REPLAY_ORIGIN_NS = 1_000_000_000_000
+
+
+def monitor_replay(
+    airframe: Airframe,
+    log: FlightLog,
+    load: Load,
+    rng: np.random.Generator,
+    velocity_noise_m_s: float = 0.02,
+) -> MonitorTrace:
+    """Feed a flight to a FlightMonitor row by row, rotor speeds then state, without what ``load`` loses.
+
+    What the node would receive (as in the fault campaign): attitude and position from motion capture,
+    body rates from the gyroscope, rotor speeds from the ESCs, velocity with white noise. The monitor
+    fits the airframe's own fittable effects, as the node does by default.
+    """
+    from multirotor_ros.diagnosis.monitor import FlightMonitor, fittable_effects
+
+    monitor = FlightMonitor(airframe, fittable_effects([spec["id"] for spec in airframe.effect_specs()]))
+    states = StateBatch.from_flight_log(log)
+    velocity = states.v_WB_W + velocity_noise_m_s * rng.standard_normal(states.v_WB_W.shape)
+    attitude = matrix_to_quat(states.R_WB)
+    speeds_kept = load.kept(len(log), rng)
+    states_kept = load.kept(len(log), rng)
+    results = []
+    for k in range(len(log)):
+        stamp = REPLAY_ORIGIN_NS + round(float(log.t[k]) * 1e9)
+        speeds = monitor.rotor_speeds(stamp, states.omega[k]) if speeds_kept[k] else []
+        state = (
+            monitor.state(stamp, states.p_WB_W[k], velocity[k], attitude[k], states.w_WB_B[k])
+            if states_kept[k]
+            else []
+        )
+        for outcome in (speeds, state):
+            results += outcome if isinstance(outcome, list) else []
+    judged = [r.detection for r in results if r.detection is not None and not r.detection.warming_up]
+    alarms = tuple(
+        ((r.stamp_ns - REPLAY_ORIGIN_NS) * 1e-9, int(r.detection.rotor[0]) + 1)
+        for r in results
+        if r.detection is not None and r.detection.alarm[0] and r.detection.onset_t[0] == r.t
+    )
+    return MonitorTrace(
+        alarms=alarms,
+        judged_share=len(judged) / len(log),
+        max_loss_ratio=max((float(np.max(d.loss / d.threshold)) for d in judged), default=0.0),
+        gaps=sum(warning.startswith("gap of") for r in results for warning in r.warnings),
+    )
+
+
+@dataclass(frozen=True)
+class LoadedResult:
+    """:func:`loaded_check`: fault-free flights and faults through the monitor, with and without loss."""
+
+    airframe: str
+    load: Load
+    nominal: tuple[MonitorTrace, ...]
+    nominal_s: float  # each nominal flight's duration
+    cases: tuple[FaultCase, ...]
+    intact: tuple[MonitorTrace, ...]  # the fault cases, nothing lost
+    loaded: tuple[MonitorTrace, ...]  # the same, with the load's losses
+
+    def describe(self) -> str:
+        """A few lines for the bench output."""
+        nominal = self.nominal
+        judging = 100 * np.mean([trace.judged_share for trace in nominal])
+        lines = [
+            f"identifier's monitor (the node's path), {self.airframe}, messages lost in runs of 1-"
+            f"{self.load.max_run} starting at {100 * self.load.run_rate:g} % of the messages of each stream:",
+            f"  {len(nominal)} fault-free flights of {self.nominal_s:g} s from the ground (take-off, "
+            f"waypoints, landing): {sum(len(trace.alarms) for trace in nominal)} false alarm(s), "
+            f"{sum(trace.gaps for trace in nominal)} gaps, peak "
+            f"{100 * max(trace.max_loss_ratio for trace in nominal):.0f} % of the threshold, "
+            f"detector judging {judging:.0f} % of the time",
+            self._faults_line("nothing lost", self.intact),
+            self._faults_line("with losses", self.loaded),
+        ]
+        return "\n".join(lines)
+
+    def _faults_line(self, label: str, traces: tuple[MonitorTrace, ...]) -> str:
+        delays, in_time, right, early = [], 0, 0, 0
+        for case, trace in zip(self.cases, traces, strict=True):
+            early += trace.alarms_before(case.onset_s)
+            alarm = trace.first_alarm_after(case.onset_s)
+            if alarm is None:
+                continue
+            delays.append(alarm[0] - case.onset_s)
+            in_time += delays[-1] <= required_delay_s(case.effectiveness) + 1e-9
+            right += alarm[1] == case.motor
+        median, largest = (np.median(delays), np.max(delays)) if delays else (math.nan, math.nan)
+        return (
+            f"  {len(self.cases)} faults, {label}: detected {len(delays)}, in time {in_time}, right rotor "
+            f"{right}, false alarms before onset {early}; delay median {median:.3f} s, max {largest:.3f} s"
+        )
+
+
+def loaded_check(
+    airframe_name: str,
+    load: Load,
+    flights: int,
+    flight_s: float,
+    n_faults: int,
+    seed: int = 0,
+    processes: int = 1,
+    velocity_noise_m_s: float = 0.02,
+) -> LoadedResult:
+    """``flights`` fault-free flights from the ground and ``n_faults`` faults through the monitor.
+
+    Faults strike 4-6 s into 8 s flights, so that the detector has learnt the noise even after a
+    gap before the onset.
+    """
+    airframe = load_airframe(airframe_name)
+    rng = np.random.default_rng(seed)
+    nominal_cases = [FaultCase(0, 1.0, math.inf, int(rng.integers(2**31))) for _ in range(flights)]
+    nominal_logs = fly_all(airframe, nominal_cases, flight_s, processes, from_the_ground=True)
+    cases = campaign_cases(airframe.n_rotors, n_faults, rng, onset_range_s=(4.0, 6.0))
+    fault_logs = fly_all(airframe, cases, 8.0, processes)
+    no_loss = Load(0.0, 1)
+    return LoadedResult(
+        airframe=airframe.name,
+        load=load,
+        nominal=tuple(monitor_replay(airframe, log, load, rng, velocity_noise_m_s) for log in nominal_logs),
+        nominal_s=flight_s,
+        cases=tuple(cases),
+        intact=tuple(monitor_replay(airframe, log, no_loss, rng, velocity_noise_m_s) for log in fault_logs),
+        loaded=tuple(monitor_replay(airframe, log, load, rng, velocity_noise_m_s) for log in fault_logs),
     )

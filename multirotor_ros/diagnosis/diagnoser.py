@@ -2,9 +2,13 @@
 
 :class:`RotorDiagnoser` runs :class:`~multirotor_ros.diagnosis.residuals.WrenchResidualGenerator` and
 :class:`~multirotor_ros.diagnosis.detection.FaultDetector` together on a batch of vehicles (one for
-the identifier node, many for the fault campaign). After a gap in the data the observer restarts,
-and the detector waits ``settle_s`` (a few observer convergence times) before it looks again, so
-that the observer's transient is not taken for a fault; it keeps what it learnt of the noise.
+the identifier node, many for the fault campaign). Whenever the observer (re)starts (the first
+sample, or after :meth:`RotorDiagnoser.restart_observer`: a gap in the data), the detector sees
+nothing for ``settle_s`` (a few observer convergence times), so that the observer's transient is not
+taken for a fault, and then learns the residual noise again before it may alarm
+(:meth:`~multirotor_ros.diagnosis.detection.FaultDetector.relearn`). :meth:`RotorDiagnoser.hold`
+keeps a shorter stretch of samples from the detector (the transient after stepping over a few
+missing samples) without restarting anything.
 
 :func:`rotor_reports` turns one vehicle's state into one :class:`RotorReport` per rotor: the
 ``diagnostics`` topic's statuses (OK / WARN / ERROR, the estimated effectiveness, a message).
@@ -58,7 +62,7 @@ class RotorDiagnoser:
         self.detector = FaultDetector(self.residuals.wrench_scale, self.partners, batch, detection)
         self.batch = batch
         self.settle_s = 3.0 * self.observer_settings.convergence_time_s
-        self._settle_until: float | None = None
+        self._hold_until: float | None = None  # the detector sees no sample before this time
         self.last: DetectorOutput | None = None
 
     @property
@@ -75,22 +79,27 @@ class RotorDiagnoser:
         self.detector.settings = settings
         self.detector.refresh_settings()
 
-    def restart_observer(self, t: float) -> None:
-        """After a gap: restart the observer, and let it settle before detecting again."""
+    def restart_observer(self) -> None:
+        """After a gap: the next sample starts the observer again (module docstring: settling, noise)."""
         self.residuals.reset()
-        self._settle_until = t + self.settle_s
+
+    def hold(self, until_t: float) -> None:
+        """Keep the samples before ``until_t`` from the detector: they are no evidence, nor noise."""
+        self._hold_until = until_t if self._hold_until is None else max(self._hold_until, until_t)
+        self.detector.interrupt()
 
     def update(self, state: StateBatch, dt_s: float) -> DiagnosisSample:
         """One measurement of every vehicle, all taken at one time; ``dt_s`` since the previous one."""
         t = float(state.t[0])
-        if not self.residuals.started and self._settle_until is None:
-            self._settle_until = t + self.settle_s
+        if not self.residuals.started:
+            self._hold_until = t + self.settle_s
+            self.detector.relearn()
         sample = self.residuals.update(state, dt_s)
         if sample.model_change_wrench is not None:
             self.detector.shift_baseline(sample.model_change_wrench)
-        if self._settle_until is not None and t < self._settle_until - 1e-9:
+        if self._hold_until is not None and t < self._hold_until - 1e-9:
             return DiagnosisSample(sample, None)
-        self._settle_until = None
+        self._hold_until = None
         self.last = self.detector.update(t, dt_s, sample.wrench, sample.signatures)
         return DiagnosisSample(sample, self.last)
 
@@ -152,9 +161,9 @@ def rotor_reports(
     partner_of = np.asarray(partners, dtype=int)
     if output is None or output.warming_up:
         why = (
-            "learning the residual noise"
+            "learning the residual noise (at the start, or again after a gap in the data)"
             if output is not None
-            else "waiting for data (or settling after a gap)"
+            else "waiting for data"
         )
         return [
             RotorReport(

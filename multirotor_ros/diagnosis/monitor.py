@@ -3,34 +3,57 @@
 :class:`FlightMonitor` takes rotor speeds and the vehicle's state as they arrive (stamps in integer
 nanoseconds, already converted to SI, ENU/FLU) and
 
-1. checks them: a stamp that repeats or goes back is refused (with the reason a node counts), and so
-   is a state that is not physically plausible (:class:`~multirotor_ros.plausibility.StateLimits`),
-   or not consistent with the last accepted state (see below), and rotor speeds above the airframe's
-   maximum (the simulator clamps up to twice the maximum, but such a report is not the rotor's speed);
-   a refused message is missing data, for the identifier and the observer alike (one missing sample,
-   the observer steps over the longer interval; a longer silence is a gap), and so is a sample that
-   passes these checks but surprises the observer far beyond its noise, e.g. with rotor speeds that
-   are not the rotors' (:class:`~multirotor_ros.diagnosis.residuals.InnovationGate`: isolated ones
-   only, a surprise that persists is a fault). Each state sample is paired
-   with the rotor speeds in force at
-   its stamp (the newest reported at or before it), waiting for them if they come later; a sample
-   without rotor speeds at most ``motor_speed_max_age_s`` old is skipped and counted; a gap longer
-   than ``max_gap_s`` is reported as a warning and restarts the observer (no derivative is taken
-   across it);
-2. diagnoses every sample (:class:`~multirotor_ros.diagnosis.diagnoser.RotorDiagnoser`) taken in
-   flight: while the vehicle rests (on the ground, held, or lying on its side) nothing is identified or
-   diagnosed, since the ground's reaction is in no model. The rule: it does not move, and its rotors
-   do not hold it as they would in flight, i.e. their thrust (with the configured thrust constant, so
-   that a wrong estimate cannot make a hover look like rest) is below 0.9 times the weight, or it is
-   tilted more than 30° whatever its thrust (still in the air, the thrust balances the weight: 30° of
-   tilt would take a side force of 58 % of the weight; a vehicle on its side is not flying);
+1. checks them: a stamp that repeats or goes back is refused (with the reason a node counts), and so is
+   a state that is not physically plausible (:class:`~multirotor_ros.plausibility.StateLimits`), or not
+   consistent with the last accepted state (see below), and rotor speeds above the airframe's maximum
+   (the simulator clamps up to twice the maximum, but such a report is not the rotor's speed); a refused
+   message is missing data, for the identifier and the observer alike (see "Breaks" below), and so is a
+   sample that passes these checks but surprises the observer far beyond its noise, e.g. with rotor
+   speeds that are not the rotors' (:class:`~multirotor_ros.diagnosis.residuals.InnovationGate`:
+   isolated ones only; the samples of a surprise that lasts are used, late). Each state sample is paired
+   with the rotor speeds at its stamp (interpolated between the reports around it), waiting for them
+   if they come later; a sample whose rotor speeds are not known, because the newest are older than
+   ``motor_speed_max_age_s`` or a report is missing after them, is skipped and counted (older speeds are
+   another moment's: in a manoeuvre the rotors change speed within their time constant, 12–30 ms);
+2. diagnoses every sample (:class:`~multirotor_ros.diagnosis.diagnoser.RotorDiagnoser`) taken in free
+   flight: while something may hold the vehicle (the ground under it, a hand, lying on its side;
+   :mod:`multirotor_ros.diagnosis.contact` gives the rules and their physics) nothing is identified or
+   diagnosed, since no model has the support's force;
 3. identifies (:class:`~multirotor_ros.ident.rls.OnlineIdentifier`) from each sample with the
    acceleration measured by the IMU, or else the central difference of the velocity over the two
    neighbouring samples (so the identifier runs one sample behind), gated on its force residual
-   (ident/rls.py); not while the detector suspects a
-   fault, so that a fault is not learnt as a new thrust constant; every ``refit_period_s`` it refits the
-   window and the diagnosis switches to the refitted model;
+   (ident/rls.py); not while the detector suspects a fault, so that a fault is not learnt as a new
+   thrust constant, nor while it cannot tell after a break (held, or learning the noise again: a fault
+   that came with a gap would otherwise be learnt for a second before it is found); every
+   ``refit_period_s`` it refits the window and the diagnosis switches to the refitted model;
 4. records what it used (:class:`~multirotor_ros.diagnosis.record.FlightRecord`) and resumes from it.
+
+Breaks. A sample is missing when its state message never came or was refused, when it has no rotor
+speeds of its time, or while the vehicle may be held. A loaded machine loses samples (a publisher or
+this node starved, a queue overflowed); that is missing data, never evidence. The span from the last
+sample that had data to the next one that has says what was lost:
+
+- longer than ``max_gap_s`` (a few sample periods), a gap: the observer restarts (no derivative is
+  taken across the gap), and the detector waits for it to settle and learns the residual noise again
+  before it may alarm (diagnosis/diagnoser.py, detection.py). A warning says so (an event when the
+  vehicle was held before: its take-off);
+- longer than ``HOLE_PERIODS`` typical sample intervals (one or a few samples lost), a hole: the
+  observer steps over it (and over any samples the innovation gate held since), but its sliding mode
+  takes about twice the step to find its way back (on simulated X8 flights, stepping over 40 ms
+  raised the largest loss estimate from 0.4 to 1.2 times the alarm threshold, back to 0.4 within
+  80 ms; 130 ms steps took 300 ms). The samples of the next ``HOLD_SPANS`` steps are kept from the
+  detector, as neither evidence nor noise, and an alarm's persistence starts again after them;
+- a node whose clock goes back (a restarted simulator) calls :meth:`FlightMonitor.restart`: stamps of
+  the old time line are forgotten and the observer restarts, as after a gap. Times in results go on
+  from where they were, so that the identifier's window stays in order.
+
+Samples the innovation gate holds back had data: they are no break. If the surprise lasts (a fault, a
+manoeuvre harder than the model follows) they are used after all, in order; if it does not, they were
+bad messages, dropped, and the observer steps over them without holding the detector (a fault's first
+samples may be among them: measured on simulated X8 faults, holding doubled the slowest detections).
+The typical sample interval is the
+lower quartile of the last ``TYPICAL_MEMORY`` spans, at least 1/``sample_rate_hz``, so that slower
+odometry is not a string of holes.
 
 Consistent with the last accepted state means: it got there in the time between their stamps without
 moving, turning or spinning up faster than physics allows. The velocity changed by at most
@@ -57,23 +80,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from multirotor_ros.diagnosis.contact import SupportWatch
 from multirotor_ros.diagnosis.detection import DetectionSettings, DetectorOutput
 from multirotor_ros.diagnosis.diagnoser import RotorDiagnoser, RotorReport, rotor_reports
 from multirotor_ros.diagnosis.record import FlightRecord, window_samples
 from multirotor_ros.diagnosis.residuals import InnovationGate, ObserverSettings
 from multirotor_ros.ident.rls import Estimate, OnlineIdentifier, OnlineSettings, RefitResult, RlsError
 from multirotor_ros.model.airframe import Airframe
+from multirotor_ros.model.effects import EFFECTS
 from multirotor_ros.model.rotation import FloatArray, quat_to_matrix
 from multirotor_ros.model.state import StateBatch
 from multirotor_ros.plausibility import StateLimits, format_vector, jump_refusal
 
 NS = 1_000_000_000
-# Resting (module docstring): slower than these, and thrust below this share of the weight or tilted
-# further than this from level.
-RESTING_SPEED_M_S = 0.1
-RESTING_RATE_RAD_S = 0.1
-RESTING_THRUST_SHARE = 0.9
-RESTING_TILT_RAD = math.radians(30.0)
+# Breaks (module docstring): a span longer than this many typical sample intervals is a hole, and the
+# detector is kept from the samples of this many spans after it; typical over this many spans.
+HOLE_PERIODS = 1.5
+HOLD_SPANS = 2.5
+TYPICAL_MEMORY = 50
 # Sensor noise on top of the physical bounds of the consistency check (module docstring).
 ATTITUDE_NOISE_RAD = 0.05
 BODY_RATE_NOISE_RAD_S = 0.5
@@ -87,14 +111,19 @@ class MonitorSettings:
     """Sample handling of the identifier node."""
 
     sample_rate_hz: float = 100.0  # [Hz] state samples processed per second, on average
-    max_gap_s: float = 0.1  # [s] a longer silence in the state messages is a gap
-    motor_speed_max_age_s: float = 0.05  # [s] rotor speeds older than this do not go with a state sample
+    max_gap_s: float = 0.05  # [s] data missing for longer is a gap (module docstring: Breaks)
+    motor_speed_max_age_s: float = 0.025  # [s] rotor speeds older than this do not go with a state sample
     max_wait_s: float = 0.5  # [s] (of stamps) a state sample waits at most this long for its rotor speeds
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be > 0, got {value!r}")
+
+
+def fittable_effects(airframe_effects: list[str]) -> list[str]:
+    """The airframe's own effects that the online identifier can fit (those with a linear parameter)."""
+    return [e for e in airframe_effects if any(p.linear for p in EFFECTS[e].parameter_list(None))]
 
 
 def angular_acceleration_limit(airframe: Airframe) -> FloatArray:
@@ -172,6 +201,7 @@ class FlightMonitor:
         self._angular_acceleration_max = angular_acceleration_limit(airframe)
         self.identifier = OnlineIdentifier(airframe, effect_ids, online)
         self.diagnoser = RotorDiagnoser(self.identifier.model(), 1, observer, detection)
+        self.support = SupportWatch(airframe, self.diagnoser.model.gravity_m_s2)
         self._innovation_gate = InnovationGate()
         self.record = record
         self._speeds: deque[tuple[int, FloatArray]] = deque(maxlen=64)
@@ -181,8 +211,13 @@ class FlightMonitor:
         self._last_processed: _Sample | None = None
         self._previous: _Sample | None = None  # two samples back, for the central difference
         self._origin_ns: int | None = None
+        self._t_after_restart_s: float | None = None  # where times go on after restart()
         self._next_due_ns = 0
         self._waiting: deque[_Sample] = deque()  # state samples waiting for their rotor speeds
+        self._last_data_ns: int | None = None  # the last sample that had data (module docstring: Breaks)
+        self._spans_s: deque[float] = deque(maxlen=TYPICAL_MEMORY)
+        self._hole_before_next = False  # samples were missing since the last one processed
+        self._held: list[tuple[_Sample, StepResult]] = []  # held by the innovation gate, undecided
         self._was_resting = False
         self._warnings: list[str] = []  # said with the next result
         self.notes: list[str] = []
@@ -258,12 +293,56 @@ class FlightMonitor:
         self._speeds.append((stamp_ns, omega))
         return self._drain()
 
+    def restart(self) -> None:
+        """Start a new time line: the caller's clock went back (a restarted simulator), the caller says so.
+
+        Stamps of the old time line are forgotten (the new ones are older), waiting samples dropped, the
+        observer restarted as after a gap (module docstring: Breaks); what was learnt is kept.
+        """
+        if self._origin_ns is not None and self._last_state_ns is not None:
+            period_s = 1.0 / self.settings.sample_rate_hz
+            self._t_after_restart_s = (self._last_state_ns - self._origin_ns) * 1e-9 + period_s
+            self._origin_ns = None
+        self._speeds.clear()
+        self._waiting.clear()
+        self._held.clear()
+        self._last_state_ns = None
+        self._last_accepted = None
+        self._jumped_position = None
+        self._last_processed = self._previous = None
+        self._last_data_ns = None
+        self._hole_before_next = False
+        self._next_due_ns = 0
+        self.diagnoser.restart_observer()
+
     def _speeds_for(self, stamp_ns: int) -> FloatArray | None:
-        """The speeds in force at ``stamp_ns``: the newest reported at or before it, if recent enough."""
+        """The rotor speeds at ``stamp_ns``, or None when they are not known (module docstring, 1.).
+
+        Between the report at or before it and the next one, linearly: the reported speeds are measured
+        ones, continuous (rotors follow their commands with a lag), and in a manoeuvre the speeds of a
+        report 8 ms old are another moment's (pairing each sample with the report before it gave the
+        observer transients of a stopped rotor's size on steps, depending only on how the odometry's
+        stamps fell between the reports). Without a next report yet, the one before, if at most
+        ``motor_speed_max_age_s`` old. Not known when a report is missing between the two (more than
+        ``HOLE_PERIODS`` typical report intervals apart): the speeds within such a hole are not known.
+        """
+        later: tuple[int, FloatArray] | None = None
         for stamp, speeds in reversed(self._speeds):
             if stamp <= stamp_ns:
-                return speeds if (stamp_ns - stamp) * 1e-9 <= self.settings.motor_speed_max_age_s else None
+                if later is None:
+                    fresh = (stamp_ns - stamp) * 1e-9 <= self.settings.motor_speed_max_age_s
+                    return speeds if fresh else None
+                span_ns = later[0] - stamp
+                if span_ns > HOLE_PERIODS * self._report_interval_ns():
+                    return None
+                return speeds + (later[1] - speeds) * ((stamp_ns - stamp) / span_ns)
+            later = (stamp, speeds)
         return None
+
+    def _report_interval_ns(self) -> float:
+        """The typical interval between rotor-speed reports: the lower quartile of the recent ones."""
+        stamps = np.fromiter((stamp for stamp, _ in self._speeds), dtype=float, count=len(self._speeds))
+        return float(np.quantile(np.diff(stamps), 0.25))
 
     def state(
         self,
@@ -376,85 +455,115 @@ class FlightMonitor:
             if not ready and self._last_state_ns - sample.stamp_ns <= patience_ns:
                 break
             self._waiting.popleft()
-            results.append(self._process(sample))
+            results += self._process(sample)
         if results and self._warnings:
             results[0].warnings[:0] = self._warnings
             self._warnings = []
         return results
 
-    def _process(self, waiting: _Sample) -> StepResult:
+    def _process(self, waiting: _Sample) -> list[StepResult]:
+        """The results of this sample and of the samples the innovation gate held before it, if decided."""
         result = StepResult(waiting.t, waiting.stamp_ns)
         omega = self._speeds_for(waiting.stamp_ns)
         if omega is None:
             result.skipped = "no recent motor_speeds"
             result.skipped_detail = (
-                f"state at {waiting.stamp_ns} ns has no rotor speeds within "
-                f"{self.settings.motor_speed_max_age_s:g} s"
+                f"state at {waiting.stamp_ns} ns has no rotor speeds of its time (within "
+                f"{self.settings.motor_speed_max_age_s:g} s, none missing after them)"
             )
-            return result
+            return [result]
         sample = _Sample(waiting.stamp_ns, waiting.state.with_omega(omega[None]))
-        resting = self._resting(sample.state)
-        if resting is not None:
+        support = self.support.support(sample.stamp_ns, sample.state)
+        if support is not None:
             if not self._was_resting:
                 result.events.append(
-                    f"resting at t = {sample.stamp_ns * 1e-9:.2f} s (not moving, {resting}): "
+                    f"resting at t = {sample.stamp_ns * 1e-9:.2f} s ({support}): "
                     "no identification or detection until it flies"
                 )
             self._was_resting = True
-            self._last_processed = self._previous = None
             result.skipped = "resting"
-            return result
-        if self._was_resting:
-            self._was_resting = False
-            self.diagnoser.restart_observer(sample.t)
-            result.events.append(f"flying from t = {sample.stamp_ns * 1e-9:.2f} s: observer restarted")
+            return [*self._drop_held(), result]
         last = self._last_processed
-        dt = 0.0 if last is None else (sample.stamp_ns - last.stamp_ns) * 1e-9
-        if last is not None and dt > self.settings.max_gap_s:
-            result.warnings.append(
-                f"gap of {dt:.3f} s in the state messages before t = {sample.stamp_ns * 1e-9:.3f} s: "
-                "observer restarted, "
-                "no derivative taken across it"
-            )
-            self.diagnoser.restart_observer(sample.t)
-            self._previous = None
-            last = None
-        innovation = self.diagnoser.residuals.innovation(sample.state, dt) if last is not None else None
-        if innovation is not None and not self._innovation_gate.admit(innovation[0]):
+        if self._mind_the_break(sample, result) or last is None:  # the observer starts with this one
+            return [*self._drop_held(), self._use(sample, result)]
+        dt_s = (sample.stamp_ns - last.stamp_ns) * 1e-9
+        innovation = self.diagnoser.residuals.innovation(sample.state, dt_s)
+        assert innovation is not None  # the observer has run since it started on ``last``
+        verdict = self._innovation_gate.judge(innovation[0])
+        if verdict == "held":
             result.skipped = "inconsistent with the model"
             result.skipped_detail = (
                 f"state at {sample.stamp_ns} ns surprises the observer by {format_vector(innovation[0])} "
                 "stopped rotors (x, y, z world; x, y, z body): held back as missing data"
             )
-            return result
+            self._held.append((sample, result))
+            return []
+        if verdict == "lasting":  # the held samples were the vehicle's (residuals.InnovationGate)
+            held, self._held = [held for held, _ in self._held], []
+            used = [self._use(h, StepResult(h.t, h.stamp_ns)) for h in held]
+            return [*used, self._use(sample, result)]
+        return [*self._drop_held(), self._use(sample, result)]
+
+    def _drop_held(self) -> list[StepResult]:
+        """The samples the innovation gate held were bad messages (or are stale): their results."""
+        dropped, self._held = [result for _, result in self._held], []
+        return dropped
+
+    def _use(self, sample: _Sample, result: StepResult) -> StepResult:
+        """Diagnose and identify from a sample that had data and passed the gate."""
+        last = self._last_processed
+        dt = 0.0 if last is None else (sample.stamp_ns - last.stamp_ns) * 1e-9
+        if self._hole_before_next:
+            # The observer steps over all of dt (the hole, and any samples the gate dropped since).
+            self.diagnoser.hold(sample.t + HOLD_SPANS * dt)
+            self._hole_before_next = False
         self._diagnose(sample, dt, result)
         self._identify(sample, last, result)
         self._previous = last
         self._last_processed = sample
         return result
 
-    def _resting(self, state: StateBatch) -> str | None:
-        """Why the vehicle rests (module docstring's rule), or None in flight.
+    def _mind_the_break(self, sample: _Sample, result: StepResult) -> bool:
+        """Whether a gap before this sample restarted the observer; a hole is noted (module docstring)."""
+        last_ns, self._last_data_ns = self._last_data_ns, sample.stamp_ns
+        span_s = 0.0 if last_ns is None else (sample.stamp_ns - last_ns) * 1e-9
+        gap = span_s > self.settings.max_gap_s
+        if gap:
+            self.diagnoser.restart_observer()
+            self._last_processed = self._previous = None
+            self._hole_before_next = False
+        elif last_ns is not None:
+            self._hole_before_next |= self._is_hole(span_s)
+        restarted = "observer restarted, residual noise learnt again before any alarm"
+        if self._was_resting:
+            flying = f"flying from t = {sample.stamp_ns * 1e-9:.2f} s"
+            result.events.append(f"{flying}: {restarted}" if gap else flying)
+        elif gap:
+            result.warnings.append(
+                f"gap of {span_s:.3f} s in the data before t = {sample.stamp_ns * 1e-9:.3f} s: "
+                f"{restarted}; no derivative taken across it"
+            )
+        self._was_resting = False
+        return gap
 
-        The ground's reaction is in no model: samples taken then would teach the identifier a wrong
-        thrust and show the detector a thrust loss that is the ground's doing.
+    def _is_hole(self, span_s: float, remember: bool = True) -> bool:
+        """Whether samples are missing in a span shorter than a gap (module docstring: Breaks).
+
+        ``remember``: the span is one between samples that had data, part of the typical interval.
         """
-        still = (
-            float(np.linalg.norm(state.v_WB_W)) < RESTING_SPEED_M_S
-            and float(np.linalg.norm(state.w_WB_B)) < RESTING_RATE_RAD_S
-        )
-        if not still:
-            return None
-        model = self.diagnoser.model
-        weight = float(np.atleast_1d(model.mass_kg)[0]) * model.gravity_m_s2
-        share = self.airframe.k_f_N_s2 * float(np.sum(state.omega**2)) / weight
-        tilt = math.acos(min(max(float(state.R_WB[0, 2, 2]), -1.0), 1.0))
-        if share >= RESTING_THRUST_SHARE and tilt <= RESTING_TILT_RAD:
-            return None
-        return f"thrust {100 * share:.0f} % of the weight, tilted {math.degrees(tilt):.0f} deg"
+        if remember:
+            self._spans_s.append(span_s)
+        typical_s = 1.0 / self.settings.sample_rate_hz
+        if span_s <= HOLE_PERIODS * typical_s:  # the quartile only when it can matter
+            return False
+        return span_s > HOLE_PERIODS * max(typical_s, float(np.quantile(self._spans_s, 0.25)))
 
     def _start_clock(self, stamp_ns: int) -> list[str]:
-        """Times are seconds since the record's origin (resumed) or the first sample."""
+        """Times are seconds since the record's origin (resumed) or the first sample, or go on (restart())."""
+        if self._t_after_restart_s is not None:
+            self._origin_ns = stamp_ns - round(self._t_after_restart_s * NS)
+            self._t_after_restart_s = None
+            return []
         record = self.record
         if record is None:
             self._origin_ns = stamp_ns
@@ -487,10 +596,17 @@ class FlightMonitor:
             previous = self._previous
             if last is None or previous is None:
                 return
+            # With a sample missing on either side the difference is not centred on ``last``: in a
+            # manoeuvre it would teach the identifier another moment's acceleration.
+            if self._is_hole((sample.stamp_ns - last.stamp_ns) * 1e-9, remember=False) or self._is_hole(
+                (last.stamp_ns - previous.stamp_ns) * 1e-9, remember=False
+            ):
+                return
             dv_W = sample.state.v_WB_W - previous.state.v_WB_W
             a_W = dv_W / ((sample.stamp_ns - previous.stamp_ns) * 1e-9)
             target = _Sample(last.stamp_ns, dataclasses.replace(last.state, a_WB_W=a_W))
-        if bool(self.diagnoser.any_suspicion[0]):
+        unjudged = result.detection is None or result.detection.warming_up
+        if bool(self.diagnoser.any_suspicion[0]) or (unjudged and self.diagnoser.detector.warmed_up):
             return
         self.identifier.add(target.state)
         if self.record is not None:

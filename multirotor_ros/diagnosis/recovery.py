@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from multirotor_ros.diagnosis.campaign import HOVER_HEIGHT_M, FaultCase, map_in_processes, waypoints
+from multirotor_ros.campaigns.engine import map_on_dask
+from multirotor_ros.diagnosis.campaign import HOVER_HEIGHT_M, FaultCase, waypoints
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.simulation.flight import ControlTrace, FaultTolerance, ReportedFault, simulate_flight
@@ -265,9 +266,7 @@ def run_recovery_campaign(
     cases = recovery_cases(airframe.n_rotors, n_cases, seed)
     duration_s = ONSET_RANGE_S[1] + FLIGHT_AFTER_ONSET_S
     started = time.perf_counter()
-    outcomes = map_in_processes(
-        fly_case_three_times, [(airframe, case, duration_s) for case in cases], processes
-    )
+    outcomes = map_on_dask(fly_case_three_times, [(airframe, case, duration_s) for case in cases], processes)
     return RecoveryResult(airframe.name, tuple(outcomes), time.perf_counter() - started)
 
 
@@ -352,5 +351,5 @@ def fly_hover(case: HoverCase) -> HoverOutcome:
 
 
 def fly_hovers(cases: Sequence[HoverCase], processes: int = 1) -> list[HoverOutcome]:
-    """Fly hover cases, in ``processes`` worker processes when > 1."""
-    return map_in_processes(fly_hover, list(cases), processes)
+    """Fly hover cases on Dask (the current client's cluster, else ``processes`` local workers when > 1)."""
+    return map_on_dask(fly_hover, list(cases), processes)

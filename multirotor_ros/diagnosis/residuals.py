@@ -25,15 +25,19 @@ step; the sliding mode turns that into a transient that lasts about ``convergenc
 like a fault. Before a sample is used, its :meth:`WrenchResidualGenerator.innovation` (how far the
 measurement lies from the observers' one-step prediction, in stopped-rotor units per channel) is
 compared with ``sigma`` times the channel's noise level (the median of the last ``memory`` samples'
-innovations, scaled to a standard deviation; at least ``floor``). Beyond it, the sample is held back
-as missing data, at most ``max_held`` in a row: an innovation that persists is the vehicle (a fault
-delays its detection by ``max_held`` samples), an isolated one is a bad message.
+innovations, scaled to a standard deviation; at least ``floor``). Beyond it, the sample is held back,
+at most ``max_held`` in a row. A surprise that lasts longer is the vehicle (a fault, or a manoeuvre
+harder than the model follows): the held samples were real, and the caller uses them after all, in
+order, so that a fault's first samples are not lost and the observer never steps over a violent
+manoeuvre (stepping over 60 ms of one looked like a stopped rotor on loaded machines). A surprise
+that ends sooner was bad messages: the held samples are dropped as missing data.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -90,9 +94,14 @@ def stopped_rotor_scales(model: Model) -> tuple[FloatArray, FloatArray]:
 _MEDIAN_ABS_TO_SIGMA = 1.0 / 0.6745
 
 
+# InnovationGate.judge: within the noise; held back (too surprising); surprising for longer than
+# max_held samples (the held ones were the vehicle's).
+GateVerdict = Literal["usual", "held", "lasting"]
+
+
 @dataclass
 class InnovationGate:
-    """Holds back isolated samples that surprise the observer far beyond its noise (module docstring)."""
+    """Holds back samples that surprise the observer far beyond its noise (module docstring)."""
 
     sigma: float = 6.0  # noise levels an innovation may reach
     floor: float = 0.25  # [stopped-rotor units] the gate never closes below this (noise-free data)
@@ -101,22 +110,22 @@ class InnovationGate:
     _recent: deque[FloatArray] = field(default_factory=deque, repr=False)
     _held: int = 0
 
-    def admit(self, innovation: FloatArray) -> bool:
-        """Whether the sample of this (C,) innovation may drive the observer."""
+    def judge(self, innovation: FloatArray) -> GateVerdict:
+        """What to do with the sample of this (C,) innovation (module docstring)."""
         size = np.abs(innovation)
         self._recent.append(size)
         if len(self._recent) > self.memory:
             self._recent.popleft()
         if len(self._recent) < self.memory // 4:
-            return True
+            return "usual"
         noise = _MEDIAN_ABS_TO_SIGMA * np.median(np.stack(self._recent), axis=0)
         if not np.any(size > np.maximum(self.sigma * noise, self.floor)):
             self._held = 0
-            return True
+            return "usual"
         if self._held < self.max_held:
             self._held += 1
-            return False
-        return True
+            return "held"
+        return "lasting"
 
 
 class WrenchResidualGenerator:

@@ -8,7 +8,8 @@ Modules
     :mod:`.wire` codec and sockets (refusals counted by :mod:`multirotor_ros.refusals`);
     :mod:`.signing` MAVLink 2 signing policy;
     :mod:`.sensors` barometer (ISA), magnetometer and GPS synthesis around a home;
-    :mod:`.actuators` actuator outputs -> rotor speeds through the motor map;
+    :mod:`.motor_order` which output drives which rotor, from the geometry and the stacks' numbering;
+    :mod:`.actuators` actuator outputs -> rotor speeds through the channel map and the motor map;
     :mod:`.messages` state in NED/FRD, message schedules; :mod:`.vehicle` the state type and the
     physics interface; :mod:`.physics` the package's VehicleSimulator as that physics;
     :mod:`.px4` PX4's simulator interface; :mod:`.ardupilot` ArduPilot's JSON interface;
@@ -24,15 +25,16 @@ Architecture: who owns the physics
 
     internal physics (``internal_physics: true``, the default with a flight stack)
         The bridge owns a simulation core in-process: the same
-        :class:`~multirotor_ros.simulation.VehicleSimulator` as the simulator node (model, integrator,
-        sensor noise), wrapped by :class:`.physics.SimulatorPhysics`. PX4 in lockstep: one step of
-        ``lockstep_step_s`` per HIL_ACTUATOR_CONTROLS, the HIL_SENSOR of that step answered at once;
-        PX4 without lockstep: steps on the wall clock with the latest command. ArduPilot: one step of
-        1/frame_rate per new frame count. The node publishes what the core produces (``odom``,
-        ``imu``, ``motor_speeds``, optionally ``clock``) and the commands (``motor_speed_cmd``), so the
-        identifier and every other node see the flight as if the simulator node flew it. Do not run a
-        simulator node in the same namespace then: two sources would publish ``odom``. Without a
-        connected flight stack the physics stands still: the vehicle keeps its state.
+        :class:`~multirotor_ros.simulation.VehicleSimulator` vehicle as the simulator node (model,
+        effects, faults, sensor noise), advanced by :class:`.physics.SimulatorPhysics` by exactly each
+        frame's Δt in sub-steps no longer than the physics step. PX4 in lockstep: each
+        HIL_ACTUATOR_CONTROLS advances to its stamp plus ``lockstep_step_s`` and is answered with that
+        instant's HIL_SENSOR at once; PX4 without lockstep: steps on the wall clock with the latest
+        command. ArduPilot: 1/frame_rate per new frame count. After each answer the node publishes what
+        fell due (``odom``, ``imu``, ``motor_speeds``, optionally ``clock``) and the commands
+        (``motor_speed_cmd``), so the identifier and every other node see the flight as if the simulator
+        node flew it. Do not run a simulator node in the same namespace then: two sources would publish
+        ``odom``. Without a connected flight stack the physics stands still: the vehicle keeps its state.
 
     external physics (``internal_physics: false``; the only mode without a flight stack)
         The simulator node owns the physics and runs on its own clock. The bridge subscribes ``odom``,
@@ -47,7 +49,9 @@ Architecture: who owns the physics
 
     The ground-station link works the same in both modes and runs on the wall clock. The per-step
     cost outside the physics is one pymavlink parse and up to three message packs (HIL_SENSOR every
-    step, HIL_GPS and HIL_STATE_QUATERNION when due) written in one send, all in the loop thread; ROS
-    sees a step only through publishing (odom at ``publish_rate_hz``, the IMU reading of the step), never
-    waits on it. bench/bench_mavlink.py measures the bridge's CPU time per step against the physics'.
+    step, HIL_GPS and HIL_STATE_QUATERNION when due) written in one send (PX4), or one struct unpack and
+    one formatted line (ArduPilot), all in the loop thread; ROS sees a step only through publishing,
+    after the answer and at the graph's rates, never waits on it. bench/bench_mavlink.py (PX4-like peer)
+    and bench/bench_ardupilot.py (the real ArduCopter) measure the answer time per frame beside the
+    flight stack's own.
 """

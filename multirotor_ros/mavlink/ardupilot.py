@@ -12,14 +12,25 @@ spaces. Fields: ``timestamp`` (simulated s), ``imu.gyro`` (rad/s, body FRD), ``i
 (specific force, m/s^2, FRD), ``position`` and ``velocity`` (NED, m and m/s, from home) and
 ``quaternion`` (w, x, y, z, body FRD -> NED).
 
-Lockstep on the frame count: each new frame is one physics step of 1/frame_rate (in sub-steps when
-that is long); a frame count that repeats is a resend after a lost answer, which gets the previous
-answer again without stepping; a count that goes backwards means SITL restarted, and the vehicle is put
-back to its initial state at t = 0. A gap (lost servo packets) is noted and flying continues.
+Lockstep on the frame count: each new frame advances the physics by exactly 1/frame_rate, as
+ArduPilot's own JSON example does (libraries/SITL/examples/JSON); SITL takes its clock from the
+differences of our timestamps (SIM_JSON.cpp: ``time_now_us += deltat``, and its frame rate from
+1/deltat), so the frame times are counted from the last change of rate, k / frame_rate, and never drift
+by the rounding of a frame to nanoseconds. A frame count that repeats is a resend after a lost answer,
+which gets the previous answer again without stepping; a count that goes backwards means SITL restarted,
+and the vehicle is put back to its initial state at t = 0. A gap (lost servo packets) is counted and
+flying continues, one frame's Δt per frame received.
+
+The answer goes out before anything else is done with the frame (the rotor command and the new state
+reach ROS after it, :meth:`~multirotor_ros.mavlink.vehicle.Simulation.announce`). With
+``measure_timing`` the session keeps, per frame, how long the answer took from the datagram's arrival
+(kernel time stamp) and how long SITL took from our answer to its next frame: :class:`FrameTimes`.
 
 Faults. Packets of the wrong size or magic, or with a frame rate of 0 or above 10 kHz, are refused and
 counted. Packets from a second address while the current peer is active (heard from within
-``peer_timeout_s``) are refused; after that silence the new address is taken as the peer reconnecting.
+``peer_timeout_s``) are refused, unless their frame count is below the current one: SITL restarted
+(from a new port), and takes over at once; after that silence any new address is taken as the peer
+reconnecting.
 In external mode (physics in the simulator node) the answer to a frame is sent when the simulator
 publishes a state newer than the one last sent.
 """
@@ -33,9 +44,11 @@ import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from multirotor_ros.mavlink.actuators import RotorChannels
-from multirotor_ros.mavlink.messages import ned_view
+from multirotor_ros.mavlink.messages import NedView, ned_axes, ned_view
+from multirotor_ros.mavlink.timing import FrameTimes
 from multirotor_ros.mavlink.vehicle import Simulation, VehicleState
 from multirotor_ros.mavlink.wire import UdpEndpoint
 from multirotor_ros.refusals import RefusalCounter
@@ -48,15 +61,19 @@ SERVO_MAGIC_32 = 29569
 SERVO_FORMAT_16 = struct.Struct("<HHI16H")
 SERVO_FORMAT_32 = struct.Struct("<HHI32H")
 MAX_FRAME_RATE_HZ = 10000
+# Packet size -> its magic and layout (magic, frame rate, frame count, then the pulses).
+_SERVO_LAYOUTS = {
+    SERVO_FORMAT_16.size: (SERVO_MAGIC_16, SERVO_FORMAT_16),
+    SERVO_FORMAT_32.size: (SERVO_MAGIC_32, SERVO_FORMAT_32),
+}
 
 
-@dataclass(frozen=True)
-class ServoPacket:
-    """One decoded SITL output packet."""
+class ServoPacket(NamedTuple):
+    """One decoded SITL output packet (a tuple of plain ints: made 1,200 times a second and more)."""
 
     frame_rate_hz: int
     frame_count: int
-    pwm_us: tuple[int, ...]
+    pwm_us: tuple[int, ...]  # 16 or 32 pulses [us], channel 1 first
 
 
 def encode_servo_packet(frame_rate_hz: int, frame_count: int, pwm_us: list[int]) -> bytes:
@@ -70,40 +87,52 @@ def encode_servo_packet(frame_rate_hz: int, frame_count: int, pwm_us: list[int])
 
 def decode_servo_packet(data: bytes) -> ServoPacket | tuple[str, str]:
     """A servo packet, or (refusal reason, detail)."""
-    if len(data) == SERVO_FORMAT_16.size:
-        values = SERVO_FORMAT_16.unpack(data)
-        expected = SERVO_MAGIC_16
-    elif len(data) == SERVO_FORMAT_32.size:
-        values = SERVO_FORMAT_32.unpack(data)
-        expected = SERVO_MAGIC_32
-    else:
+    layout = _SERVO_LAYOUTS.get(len(data))
+    if layout is None:
         return (
             "bad servo packet size",
             f"{len(data)} bytes, expected {SERVO_FORMAT_16.size} or {SERVO_FORMAT_32.size}",
         )
-    magic, frame_rate, frame_count = values[:3]
+    expected, fields = layout
+    values = fields.unpack(data)
+    magic, frame_rate, frame_count = values[0], values[1], values[2]
     if magic != expected:
         return "bad servo magic", f"magic {magic} in a {len(data)}-byte packet, expected {expected}"
     if not 1 <= frame_rate <= MAX_FRAME_RATE_HZ:
         return "bad frame rate", f"frame rate {frame_rate} Hz outside 1..{MAX_FRAME_RATE_HZ}"
-    return ServoPacket(frame_rate, frame_count, tuple(values[3:]))
+    return ServoPacket(frame_rate, frame_count, values[3:])
+
+
+# The answer line, keys in SIM_JSON.cpp's spelling; '%.12g' keeps 1e-8 m at 10 km, the timestamp is
+# written to the nanosecond. A %-format: json.dumps of the same dict costs ten times as much per frame.
+_LINE = (
+    '\n{"timestamp":%.9f,"imu":{"gyro":[%.12g,%.12g,%.12g],"accel_body":[%.12g,%.12g,%.12g]},'
+    '"position":[%.12g,%.12g,%.12g],"velocity":[%.12g,%.12g,%.12g],"quaternion":[%.12g,%.12g,%.12g,%.12g]}\n'
+)
 
 
 def state_json_line(state: VehicleState) -> bytes:
     """The answer line for one state (see the module docstring)."""
-    view = ned_view(state)
+    # ned_view's numbers as plain floats, without its arrays: p 0:3, v 3:6, q 6:10, accel 13:16, gyro 16:19.
+    out = ned_axes(state)
+    if out is not None:
+        n = out.tolist()
+        if math.isfinite(state.t_s + sum(n[0:10]) + sum(n[13:19])):
+            if n[6] < 0.0:
+                n[6:10] = [-value for value in n[6:10]]  # the same attitude, w >= 0 (ned_view)
+            return (_LINE % (state.t_s, *n[16:19], *n[13:16], *n[0:10])).encode("ascii")
+    return _json_line(ned_view(state))  # NaN or beyond a float's range: spelt as JSON spells them
+
+
+def _json_line(view: NedView) -> bytes:
     document = {
-        "timestamp": round(state.t_s, 9),
-        "imu": {"gyro": _rounded(view.imu_gyro_FRD_rad_s), "accel_body": _rounded(view.imu_accel_FRD_m_s2)},
-        "position": _rounded(view.p_NED_m),
-        "velocity": _rounded(view.v_NED_m_s),
-        "quaternion": _rounded(view.q_NED_FRD),
+        "timestamp": view.t_s,
+        "imu": {"gyro": view.imu_gyro_FRD_rad_s.tolist(), "accel_body": view.imu_accel_FRD_m_s2.tolist()},
+        "position": view.p_NED_m.tolist(),
+        "velocity": view.v_NED_m_s.tolist(),
+        "quaternion": view.q_NED_FRD.tolist(),
     }
     return ("\n" + json.dumps(document, separators=(",", ":")) + "\n").encode("ascii")
-
-
-def _rounded(values: object) -> list[float]:
-    return [round(float(v), 9) for v in values]  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)
@@ -113,6 +142,7 @@ class ArduPilotConfig:
     host: str = "127.0.0.1"
     port: int = DEFAULT_PORT
     peer_timeout_s: float = 2.0  # [s] silence after which another address may take over
+    measure_timing: bool = False  # keep FrameTimes (benchmarks: one entry per frame, never dropped)
 
 
 class ArduPilotSession:
@@ -133,16 +163,24 @@ class ArduPilotSession:
         self.refusals = refusals
         self.on_restart = on_restart
         self.clock = clock
-        self.endpoint = UdpEndpoint(config.host, config.port, self._on_datagram)
+        self.endpoint = UdpEndpoint(config.host, config.port, self._on_datagram, config.measure_timing)
         self.peer: tuple[str, int] | None = None
         self.last_heard_s = -math.inf
         self.last_frame: int | None = None
         self.frames = 0
         self.missed_frames = 0
+        # SITL sends a frame again when our answer is late (its own timeout): part of its protocol, not
+        # bad input, so counted here and not refused.
+        self.repeated_frames = 0
         self.restarts = 0
+        self.times = FrameTimes() if config.measure_timing else None
         self._last_reply = b""
         self._last_reply_t_s = -math.inf
         self._awaiting_state = False
+        # Frame times: base_ns + frames_since_base / rate_hz (see the module docstring).
+        self._rate_hz = 0
+        self._base_ns = 0
+        self._frames_since_base = 0
 
     @property
     def connected(self) -> bool:
@@ -151,14 +189,17 @@ class ArduPilotSession:
 
     def _on_datagram(self, data: bytes, address: tuple[str, int]) -> None:
         now = self.clock()
+        packet = decode_servo_packet(data)
         if self.peer is not None and address != self.peer:
-            if now - self.last_heard_s < self.config.peer_timeout_s:
+            # A SITL that restarted sends from a new port and counts its frames from 0 again: it takes
+            # over at once. Any other second sender is refused while the current one is heard from.
+            restarted = isinstance(packet, ServoPacket) and packet.frame_count < (self.last_frame or 0)
+            if now - self.last_heard_s < self.config.peer_timeout_s and not restarted:
                 self.refusals.refuse(
                     "second peer", f"servo packet from {address[0]}:{address[1]} while {self.peer} is active"
                 )
                 return
             _LOGGER.warning("ArduPilot SITL now at %s:%d (was %s)", address[0], address[1], self.peer)
-        packet = decode_servo_packet(data)
         if not isinstance(packet, ServoPacket):
             self.refusals.refuse(*packet)
             return
@@ -170,9 +211,9 @@ class ArduPilotSession:
     def _on_packet(self, packet: ServoPacket) -> None:
         last = self.last_frame
         if last is not None and packet.frame_count == last:
-            self.refusals.refuse(
-                "duplicate frame", f"frame {packet.frame_count} again: the last answer is resent"
-            )
+            self.repeated_frames += 1
+            if self.repeated_frames == 1:
+                _LOGGER.info("frame %d again: the last answer is resent (counted from now on)", last)
             if self._last_reply:
                 self._send(self._last_reply)
             return
@@ -184,23 +225,32 @@ class ArduPilotSession:
                 packet.frame_count,
             )
             self.simulation.reset()
+            self._rate_hz = 0  # time starts again from the reset vehicle's 0
             self._last_reply_t_s = -math.inf
             self.on_restart()
         elif last is not None and packet.frame_count > last + 1:
             self.missed_frames += packet.frame_count - last - 1
         self.last_frame = packet.frame_count
         self.frames += 1
-        command = self.channels.from_pwm(packet.pwm_us)
+        command = self.channels.from_servo_packet(packet.pwm_us)
         for problem in command.problems:
             self.refusals.refuse(problem.reason, f"servo packet {packet.frame_count}: {problem.detail}")
         if command.speeds_rad_s is not None:
             self.simulation.command(command.speeds_rad_s)
         if self.simulation.internal:
-            self._reply(self.simulation.step(1.0 / packet.frame_rate_hz))
+            self._reply(self.simulation.advance_to(self._frame_time_ns(packet.frame_rate_hz)))
         elif self.simulation.latest.t_s > self._last_reply_t_s:
             self._reply(self.simulation.latest)
         else:
             self._awaiting_state = True
+        self.simulation.announce()
+
+    def _frame_time_ns(self, rate_hz: int) -> int:
+        """When this frame ends: one more 1/rate_hz after the base (rebased when the rate changes)."""
+        if rate_hz != self._rate_hz:
+            self._rate_hz, self._base_ns, self._frames_since_base = rate_hz, self.simulation.t_ns, 0
+        self._frames_since_base += 1
+        return self._base_ns + round(self._frames_since_base * 1_000_000_000 / rate_hz)
 
     def on_external_state(self, state: VehicleState) -> None:
         """External mode: answer a waiting frame with the simulator's new state."""
@@ -214,8 +264,12 @@ class ArduPilotSession:
         self._send(self._last_reply)
 
     def _send(self, data: bytes) -> None:
-        if self.peer is not None:
-            self.endpoint.send(data, self.peer)
+        if self.peer is None:
+            return
+        if self.times is not None:
+            # Taken as the answer leaves: SITL may answer it before sendto returns to us.
+            self.times.frame(self.endpoint.arrival_ns, time.time_ns())
+        self.endpoint.send(data, self.peer)
 
     def close(self) -> None:
         """Close the socket."""

@@ -12,12 +12,14 @@ See :mod:`multirotor_ros.mavlink` for the two modes (internal physics / external
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import selectors
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -37,6 +39,9 @@ _LOGGER = logging.getLogger(__name__)
 
 FlightStack = Literal["px4", "ardupilot", "none"]
 FLIGHT_STACKS: tuple[FlightStack, ...] = ("px4", "ardupilot", "none")
+# Deferred work (:meth:`MavlinkBridge.defer`) waits for a moment without input, but never more than this
+# many items: a flight stack that always has its next frame waiting still gets the graph's messages.
+MAX_DEFERRED = 16
 
 
 @dataclass(frozen=True)
@@ -59,12 +64,15 @@ class BridgeOutputs:
     """Where the bridge's results go (the node: publishers; tests: recorders)."""
 
     motor_command: Callable[[FloatArray, float], None]  # rotor speed commands [rad/s], simulated time [s]
-    vehicle_state: Callable[[VehicleState], None]  # internal physics: every new state
+    vehicle_state: Callable[[VehicleState], None]  # internal physics: every new state, after its answer
     setpoint: Callable[[Setpoint], None]  # from the ground station, world ENU
 
 
 class MavlinkBridge:
-    """See the module docstring. One thread runs the loop; update_external_state() is thread-safe."""
+    """See the module docstring.
+
+    One thread runs the loop; other threads may call update_external_state() and run_in_loop().
+    """
 
     def __init__(
         self,
@@ -94,6 +102,8 @@ class MavlinkBridge:
         self._register(self._wake_reader, self._on_wake)
         self._pending_lock = threading.Lock()
         self._pending_state: VehicleState | None = None
+        self._pending_work: list[Callable[[], None]] = []
+        self._deferred: deque[Callable[[], None]] = deque()
         self.px4: Px4Session | None = None
         self.ardupilot: ArduPilotSession | None = None
         self.gcs: GroundStationLink | None = None
@@ -158,10 +168,28 @@ class MavlinkBridge:
         """A new state from the simulator node (external mode); safe to call from any thread."""
         with self._pending_lock:
             self._pending_state = state
+        self._wake()
+
+    def run_in_loop(self, work: Callable[[], None]) -> None:
+        """Have the loop's thread run ``work`` between two messages (it owns the physics); any thread."""
+        with self._pending_lock:
+            self._pending_work.append(work)
+        self._wake()
+
+    def defer(self, work: Callable[[], None]) -> None:
+        """Have the loop run ``work`` once no input waits (from the loop's thread: the outputs' callbacks).
+
+        For what must not hold up the flight stack's next frame: the node publishing to ROS after an
+        answer (an odom message costs more than SITL's own frame) runs while the flight stack works on
+        its frame, and when that frame arrives first it is answered before the rest is published.
+        """
+        self._deferred.append(work)
+
+    def _wake(self) -> None:
         try:
             self._wake_writer.send(b"\0")
         except (BlockingIOError, InterruptedError):
-            pass  # the loop has wake-ups queued already and will read the newest state
+            pass  # the loop has wake-ups queued already and will find what is pending
 
     def _on_wake(self) -> None:
         try:
@@ -171,6 +199,9 @@ class MavlinkBridge:
             pass
         with self._pending_lock:
             state, self._pending_state = self._pending_state, None
+            work, self._pending_work = self._pending_work, []
+        for item in work:
+            self._guarded(item, default=None)
         if state is None or self.simulation.internal:
             return
         self.simulation.update(state)
@@ -198,6 +229,9 @@ class MavlinkBridge:
         timeout = min(max(next_due - self.clock(), 0.0), max_wait_s)
         for key, _ in self._selector.select(timeout):
             self._guarded(key.data, default=None)
+        deferred = self._deferred
+        while deferred and (len(deferred) > MAX_DEFERRED or not self._selector.select(0)):
+            self._guarded(deferred.popleft(), default=None)
 
     def _guarded(self, work: Callable[..., Any], *args: Any, default: Any) -> Any:
         try:
@@ -210,8 +244,15 @@ class MavlinkBridge:
 
     def run(self, stop: threading.Event, max_wait_s: float = 0.1) -> None:
         """Loop until ``stop`` is set."""
-        while not stop.is_set():
-            self.spin_once(max_wait_s)
+        # What start-up made (imports, compiled kernels, ROS: a few hundred thousand objects) is moved
+        # out of the garbage collector's sight: a full collection would scan it all, tens of milliseconds
+        # in the middle of lockstep, while what is made per frame is freed by reference counting.
+        gc.freeze()
+        try:
+            while not stop.is_set():
+                self.spin_once(max_wait_s)
+        finally:
+            gc.unfreeze()  # what became garbage meanwhile is collectable again
 
     def close(self) -> None:
         """Close every socket."""

@@ -65,14 +65,59 @@ class NedView:
         return quat_to_euler(self.q_NED_FRD)
 
 
+def _axis_changes() -> FloatArray:
+    """The 19 numbers of a :class:`NedView` from the state's 19 in ENU/FLU, as one matrix.
+
+    Order: position, velocity (world), attitude quaternion, body rate, accelerometer, gyroscope (body).
+    The conversions of :mod:`multirotor_ros.frames` are changes of axes, linear in what they convert (the
+    quaternion's up to its sign, which frames.py makes w >= 0 and the unit quaternions need no change
+    of): applied to the unit vectors they give their matrices, so every number still goes through
+    frames.py, and a state costs one product where a dozen small numpy calls cost more than the physics
+    step (this runs for every frame a flight stack gets, 1,200 a second from ArduPilot).
+    """
+    world, body = enu_to_ned(np.eye(3)).T, flu_to_frd(np.eye(3)).T
+    blocks = (world, world, quat_enu_flu_to_ned_frd(np.eye(4)).T, body, body, body)
+    matrix = np.zeros((19, 19))
+    start = 0
+    for block in blocks:
+        matrix[start : start + len(block), start : start + len(block)] = block
+        start += len(block)
+    return matrix
+
+
+_AXIS_CHANGES = _axis_changes()
+
+
+def ned_axes(state: VehicleState) -> FloatArray | None:
+    """A :class:`NedView`'s 19 numbers in one array (None when the state is not all finite).
+
+    In :func:`_axis_changes`' order, the attitude's sign not yet made w >= 0: for a caller that wants
+    plain numbers (ArduPilot's answer line) without the view's arrays. :func:`ned_view` converts a
+    state that is not all finite elementwise.
+    """
+    inside = np.concatenate(
+        (state.p_WB_W, state.v_WB_W, state.q_WB, state.w_WB_B, state.imu_specific_force_B, state.imu_w_WB_B)
+    )
+    if not np.isfinite(inside).all():
+        return None  # the product would spread a NaN or an infinity to every row
+    return _AXIS_CHANGES.dot(inside)
+
+
 def ned_view(state: VehicleState) -> NedView:
     """The state's NED/FRD quantities."""
-    q_NED_FRD = quat_enu_flu_to_ned_frd(state.q_WB)
+    out = ned_axes(state)
+    if out is None:
+        return _ned_view_elementwise(state)
+    q_NED_FRD = out[6:10] if out[6] >= 0.0 else -out[6:10]  # the same attitude, w >= 0 as frames.py gives
+    return NedView(state.t_s, out[0:3], out[3:6], q_NED_FRD, out[10:13], out[13:16], out[16:19])
+
+
+def _ned_view_elementwise(state: VehicleState) -> NedView:
     return NedView(
         t_s=state.t_s,
         p_NED_m=enu_to_ned(state.p_WB_W),
         v_NED_m_s=enu_to_ned(state.v_WB_W),
-        q_NED_FRD=q_NED_FRD,
+        q_NED_FRD=quat_enu_flu_to_ned_frd(state.q_WB),
         w_FRD_rad_s=flu_to_frd(state.w_WB_B),
         imu_accel_FRD_m_s2=flu_to_frd(state.imu_specific_force_B),
         imu_gyro_FRD_rad_s=flu_to_frd(state.imu_w_WB_B),

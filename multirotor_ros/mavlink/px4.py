@@ -15,11 +15,18 @@ HIL_STATE_QUATERNION, and then one HIL_ACTUATOR_CONTROLS per control cycle: ``co
 Time. PX4 cannot run before it has a clock, and its clock in lockstep is HIL_SENSOR's ``time_usec``:
 so once PX4 is connected, the session steps the physics on the wall clock (every ``step_s``, rotors
 idle) and sends sensors, until the first actuator message arrives. If that message has the lockstep
-flag, the session switches to lockstep: exactly one physics step of ``step_s`` per actuator message,
-and nothing else moves time; PX4 waits for the sensors of that step before its next cycle, so the
-flight is identical however fast either side runs. Without the flag the physics keeps running on the
-wall clock with the latest command. In external mode (physics in the simulator node) the session
-forwards every new state instead of stepping anything.
+flag, the session switches to lockstep and nothing else moves time: an actuator message stamped
+``time_usec`` (PX4's clock, which in lockstep is the ``time_usec`` of the HIL_SENSOR it computed on,
+SimulatorMavlink.cpp: ``px4_clock_settime`` from HIL_SENSOR, ``hrt_absolute_time()`` into
+HIL_ACTUATOR_CONTROLS) holds its command from that instant to one ``step_s`` later: the physics advances
+to exactly ``time_usec + step_s`` (sub-steps no longer than the physics step) and answers with the
+sensors of that instant. A command computed on an older sensor than the newest one sent (PX4 answering
+a sensor the stall rule below sent while it was busy) is held without moving time, since the newest
+sensor's answer is on its way; a stamp of 0 (no clock) or ahead of the newest sensor is taken as
+answering the newest one, the latter counted as refused. PX4 waits for the sensors of each step before
+its next cycle, so the flight is identical however fast either side runs. Without the flag the physics
+keeps running on the wall clock with the latest command, ``step_s`` at a time. In external mode (physics
+in the simulator node) the session forwards every new state instead of stepping anything.
 
 Faults. A message that cannot be used is counted and ignored; in lockstep an unusable actuator
 message still advances one step with the previous command, because PX4's clock would otherwise stop,
@@ -49,6 +56,7 @@ from multirotor_ros.mavlink.messages import (
     time_usec,
 )
 from multirotor_ros.mavlink.sensors import STANDARD_GRAVITY_M_S2, GpsFix, SensorModel
+from multirotor_ros.mavlink.timing import FrameTimes
 from multirotor_ros.mavlink.vehicle import Simulation, VehicleState
 from multirotor_ros.mavlink.wire import MavlinkCodec, Message, SocketCallbacks, TcpServerEndpoint
 from multirotor_ros.refusals import RefusalCounter
@@ -83,6 +91,7 @@ class Px4Config:
     # [s] wall time without an actuator message after which lockstep takes one step on its own (a
     # busy machine can hold PX4 up for a good fraction of a second: keep well above that).
     stall_timeout_s: float = 2.0
+    measure_timing: bool = False  # keep FrameTimes of the lockstep steps (benchmarks)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.step_s) and 1e-4 <= self.step_s <= 0.05):
@@ -128,8 +137,12 @@ class Px4Session:
         self.lockstep = False
         self.armed = False
         self.actuator_messages = 0
+        self.late_commands = 0  # computed on an older sensor than the newest: held, time not moved
         self.connections = 0
         self.stalls = 0
+        self.times = FrameTimes() if config.measure_timing else None
+        self._received_ns = 0
+        self._step_ns = round(config.step_s * 1e9)
         self._next_free_step_s = math.inf
         self._last_actuators_s = -math.inf
         self._last_sent_t_s = -math.inf
@@ -159,6 +172,8 @@ class Px4Session:
     # ------------------------------------------------------------------ incoming
 
     def _on_data(self, data: bytes) -> None:
+        if self.times is not None:
+            self._received_ns = time.time_ns()
         for message in self.codec.decode(data):
             kind = message.get_type()
             if kind == "HIL_ACTUATOR_CONTROLS":
@@ -179,19 +194,39 @@ class Px4Session:
         if self.simulation.internal:
             if self.lockstep:
                 self._next_free_step_s = math.inf
-                self.send_state(self.simulation.step(self.config.step_s))
+                target_ns = self._computed_on_ns(message.time_usec) + self._step_ns
+                if target_ns > self.simulation.t_ns:
+                    self.send_state(self.simulation.advance_to(target_ns), answering=True)
+                else:
+                    self.late_commands += 1
             elif math.isinf(self._next_free_step_s):
                 self._next_free_step_s = self.clock()
+        self.simulation.announce()
+
+    def _computed_on_ns(self, stamp_usec: int) -> int:
+        """The simulated time [ns] of the sensors an actuator message was computed on (module docstring)."""
+        newest_ns = self.simulation.t_ns
+        newest_usec = time_usec(newest_ns * 1e-9)  # as the newest HIL_SENSOR was stamped
+        if stamp_usec == 0 or stamp_usec == newest_usec:
+            return newest_ns
+        if stamp_usec > newest_usec:
+            self.refusals.refuse(
+                "actuator stamp ahead",
+                f"HIL_ACTUATOR_CONTROLS at {stamp_usec} us, the newest HIL_SENSOR at {newest_usec} us",
+            )
+            return newest_ns
+        return stamp_usec * 1000
 
     def _on_command_long(self, message: Message) -> None:
         self._send(answer_command(self.codec.mav, message, self.schedule, self.refusals.refuse))
 
     # ------------------------------------------------------------------ outgoing
 
-    def send_state(self, state: VehicleState) -> None:
+    def send_state(self, state: VehicleState, answering: bool = False) -> None:
         """HIL_SENSOR for this state, and HIL_GPS / HIL_STATE_QUATERNION / HEARTBEAT when they are due.
 
-        All of one step goes out in one write: one wake-up of the flight stack per step.
+        All of one step goes out in one write: one wake-up of the flight stack per step. ``answering``:
+        the answer to the actuator message just read (its time is kept with ``measure_timing``).
         """
         if not self.connected or state.t_s <= self._last_sent_t_s:
             return
@@ -210,6 +245,9 @@ class Px4Session:
                 data += encode(self._hil_state_quaternion(fix, view, stamp))
         if self.heartbeat_schedule.due(MSG_HEARTBEAT, state.t_s):
             data += encode(self._heartbeat())
+        if answering and self.times is not None:
+            # Taken as the answer leaves: PX4 may answer it before the write returns to us.
+            self.times.frame(self._received_ns, time.time_ns())
         self.endpoint.send(data)
 
     def on_external_state(self, state: VehicleState) -> None:
@@ -234,10 +272,12 @@ class Px4Session:
                     self.config.stall_timeout_s,
                 )
             self._last_actuators_s = now_s
-            self.send_state(self.simulation.step(step))
+            self.send_state(self.simulation.advance_to(self.simulation.t_ns + self._step_ns))
+            self.simulation.announce()
             return now_s + self.config.stall_timeout_s
         while now_s >= self._next_free_step_s:
-            self.send_state(self.simulation.step(step))
+            self.send_state(self.simulation.advance_to(self.simulation.t_ns + self._step_ns))
+            self.simulation.announce()
             self._next_free_step_s += step
             if now_s - self._next_free_step_s > 0.1:
                 # Too slow to keep up with the wall clock: skip ahead rather than run a backlog.

@@ -61,8 +61,13 @@ class Physics(Protocol):
         """The current state."""
         ...
 
-    def step(self, rotor_speed_cmd_rad_s: FloatArray, dt_s: float) -> VehicleState:
-        """Advance by ``dt_s`` with the rotor command held; return the new state."""
+    @property
+    def t_ns(self) -> int:
+        """Simulated time [ns]."""
+        ...
+
+    def advance_to(self, rotor_speed_cmd_rad_s: FloatArray, t_ns: int) -> VehicleState:
+        """Hold the rotor command and advance to exactly ``t_ns``; return the new state."""
         ...
 
     def reset(self) -> VehicleState:
@@ -73,10 +78,11 @@ class Physics(Protocol):
 class Simulation:
     """The vehicle the flight-stack links talk to.
 
-    With ``physics`` (internal mode) the links step it themselves and every new state goes to
-    ``on_state`` (the node publishes it). Without (external mode) the state is whatever the bridge
-    was last given by :meth:`update` (the node's ``odom``/``imu``/``motor_speeds`` subscriptions).
-    Either way a rotor command goes to ``on_command`` (the node publishes ``motor_speed_cmd``).
+    With ``physics`` (internal mode) the links step it themselves. Without (external mode) the state
+    is whatever the bridge was last given by :meth:`update` (the node's ``odom``/``imu``/``motor_speeds``
+    subscriptions). A link answers its flight stack first and then calls :meth:`announce`, which hands
+    the new rotor command to ``on_command`` (the node publishes ``motor_speed_cmd``) and, in internal
+    mode, the new state to ``on_state`` (the node publishes what fell due): ROS never delays an answer.
     """
 
     def __init__(
@@ -100,32 +106,49 @@ class Simulation:
         # External mode knows nothing until the simulator node speaks: no telemetry about a guess.
         self.known = physics is not None
         self.steps = 0
+        self._new_command = False
+        self._new_state = False
 
     @property
     def internal(self) -> bool:
         """Whether the bridge owns the physics."""
         return self.physics is not None
 
-    def command(self, speeds_rad_s: FloatArray) -> None:
-        """Hold a new rotor command and pass it on."""
-        self.command_rad_s = speeds_rad_s
-        self._on_command(speeds_rad_s, self.latest.t_s)
+    @property
+    def t_ns(self) -> int:
+        """Simulated time of the owned physics [ns]."""
+        assert self.physics is not None, "t_ns needs the bridge's own physics"
+        return self.physics.t_ns
 
-    def step(self, dt_s: float) -> VehicleState:
-        """Advance the owned physics by ``dt_s`` with the held command."""
-        assert self.physics is not None, "step() needs the bridge's own physics"
-        state = self.physics.step(self.command_rad_s, dt_s)
+    def command(self, speeds_rad_s: FloatArray) -> None:
+        """Hold a new rotor command (passed on at the next :meth:`announce`)."""
+        self.command_rad_s = speeds_rad_s
+        self._new_command = True
+
+    def advance_to(self, t_ns: int) -> VehicleState:
+        """Advance the owned physics to exactly ``t_ns`` with the held command."""
+        assert self.physics is not None, "advance_to() needs the bridge's own physics"
+        state = self.physics.advance_to(self.command_rad_s, t_ns)
         self.latest = state
         self.steps += 1
-        self._on_state(state)
+        self._new_state = True
         return state
+
+    def announce(self) -> None:
+        """Hand what changed since the last call to the outputs (after the flight stack's answer)."""
+        if self._new_command:
+            self._new_command = False
+            self._on_command(self.command_rad_s, self.latest.t_s)
+        if self._new_state:
+            self._new_state = False
+            self._on_state(self.latest)
 
     def reset(self) -> VehicleState:
         """Back to the initial state (internal) and no command."""
         self.command_rad_s = np.zeros(self.n_rotors)
         if self.physics is not None:
             self.latest = self.physics.reset()
-            self._on_state(self.latest)
+            self._new_state = True
         return self.latest
 
     def update(self, state: VehicleState) -> None:

@@ -252,10 +252,37 @@ class TcpServerEndpoint:
         self.listener.close()
 
 
-class UdpEndpoint:
-    """A bound UDP socket; ``on_datagram(data, address)`` for every datagram received."""
+# Linux's SO_TIMESTAMPNS (asm-generic/socket.h; Python does not name it) and the struct timespec it
+# delivers on 64-bit Linux: seconds, nanoseconds.
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("qq")
+_TIMESTAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
 
-    def __init__(self, host: str, port: int, on_datagram: Callable[[bytes, tuple[str, int]], None]):
+
+def _arrival_ns(ancillary: list[tuple[int, int, bytes]]) -> int:
+    """The kernel's receive time [ns, CLOCK_REALTIME] in recvmsg's ancillary data (0 if absent)."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+            seconds, nanoseconds = _TIMESPEC.unpack(data[: _TIMESPEC.size])
+            return seconds * 1_000_000_000 + nanoseconds
+    return 0
+
+
+class UdpEndpoint:
+    """A bound UDP socket; ``on_datagram(data, address)`` for every datagram received.
+
+    With ``arrival_times`` the kernel stamps each datagram as it arrives (SO_TIMESTAMPNS, CLOCK_REALTIME
+    nanoseconds, :attr:`arrival_ns` while ``on_datagram`` runs): the time an answer took counts from
+    there, including any wait in the socket's queue while the loop was busy.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        on_datagram: Callable[[bytes, tuple[str, int]], None],
+        arrival_times: bool = False,
+    ):
         self.on_datagram = on_datagram
         self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -264,6 +291,10 @@ class UdpEndpoint:
             self.socket.close()
             raise OSError(f"cannot bind UDP {host}:{port}: {error.strerror}") from error
         self.socket.setblocking(False)
+        self.arrival_times = arrival_times
+        if arrival_times:
+            self.socket.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        self.arrival_ns = 0
         self._unregister: Callable[[socket.socket], None] | None = None
 
     @property
@@ -284,7 +315,11 @@ class UdpEndpoint:
         # Drain what is queued: a burst of datagrams costs one wake-up.
         for _ in range(64):
             try:
-                data, address = self.socket.recvfrom(65536)
+                if self.arrival_times:
+                    data, ancillary, _, address = self.socket.recvmsg(65536, _TIMESTAMP_SPACE)
+                    self.arrival_ns = _arrival_ns(ancillary)
+                else:
+                    data, address = self.socket.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:

@@ -34,17 +34,33 @@ Bad input never stops the node nor moves an estimate. A message that fails valid
 counted, and logged once per reason with throttled summaries after: wrong rotor count or names,
 values that are not finite or not physically plausible (multirotor_ros.plausibility: positions,
 speeds, rates, accelerations, a position jump since the last accepted one, rotor speeds above the
-airframe's maximum), a stamp that repeats, goes back, or lies more than ``future_stamp_tolerance_s``
-ahead of the node's clock (refused alone, never kept as the newest; under ``use_sim_time`` that holds
-every message until the first ``clock``). Samples that pass are still gated on their force residual
-before the identifier learns from them (ident/rls.py). Gaps in the state messages are logged as
-warnings and restart the observer. An exception in a callback or timer (a bug, not bad input) is
-logged once per kind with a count and the node goes on. Detection thresholds are parameters
+airframe's maximum), a stamp that repeats with other content, goes back, or lies more than
+``future_stamp_tolerance_s`` ahead of the node's clock (refused alone, never kept as the newest; under
+``use_sim_time`` that holds every message until the first ``clock``). A message equal to the last one
+used on its topic is a resend (a lockstep simulator resends its newest odometry while it waits for a
+command): no data and no error, ignored without a log line and counted (``<topic>_resent`` in the
+``inputs`` status below). Samples that pass are still gated on their force residual
+before the identifier learns from them (ident/rls.py). Missing data is never evidence
+(diagnosis/monitor.py, "Breaks"): gaps are logged as warnings, restart the observer, and the residual
+noise is learnt again before any alarm; samples taken while the vehicle may be held (on the ground,
+before take-off) are not used (diagnosis/contact.py). When the node's clock goes back by more than
+``future_stamp_tolerance_s`` (a restarted simulator under ``use_sim_time``), the identifier starts a
+new time line (FlightMonitor.restart) and says so. An exception in a callback or timer (a bug, not bad
+input) is logged once per kind with a count and the node goes on. Detection thresholds are parameters
 ``detection.*`` that ``ros2 param set`` may change.
+
+A stalled peer is named (diagnosis/inputs.py): when an input (``motor_speeds``, ``odom``, or ``pose``
+and ``imu``) brings nothing for ``input_timeout_s`` of the node's clock or of wall time, a warning
+says which, and whether the others still come (once per episode; a line when it is back), and
+``diagnostics`` carries a status named ``inputs`` (OK, or WARN naming the silent inputs; resends do not
+end a silence, and a silence with resends says that its publisher is alive and waits). It is
+published as a DiagnosticArray of its own just before the rotors' one, which keeps one status per
+rotor and nothing else.
 """
 
 from __future__ import annotations
 
+import time
 import traceback
 from collections.abc import Callable
 from dataclasses import fields
@@ -57,16 +73,23 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, Header
 
 from multirotor_ros.diagnosis.detection import DetectionSettings
-from multirotor_ros.diagnosis.monitor import FlightMonitor, MonitorSettings, Refused, StepResult
+from multirotor_ros.diagnosis.inputs import InputWatch
+from multirotor_ros.diagnosis.monitor import (
+    FlightMonitor,
+    MonitorSettings,
+    Refused,
+    StepResult,
+    fittable_effects,
+)
 from multirotor_ros.diagnosis.record import FlightRecord, RecordError
 from multirotor_ros.diagnosis.residuals import ObserverSettings
 from multirotor_ros.ident.pose_imu import PoseImuFusion, StateSample, Unpaired
 from multirotor_ros.ident.rls import OnlineSettings
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.model.effects import EFFECTS, parse_effect_list
+from multirotor_ros.model.effects import parse_effect_list
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.nodes.clock import steady_clock
 from multirotor_ros.nodes.effectiveness_message import rotor_effectiveness_message
@@ -105,6 +128,7 @@ _DETECTION_HELP = {
     "effectiveness_time_constant_s": ("averaging of the effectiveness estimate after an alarm", "s"),
     "ambiguity_chi2": ("coaxial partners closer than this misfit are both named", "-"),
     "error_below_effectiveness": ("ERROR below this remaining effectiveness, WARN above", "-"),
+    "relearn_s": ("after a gap or restart, residual noise learnt again for this long before any alarm", "s"),
 }
 
 
@@ -151,7 +175,7 @@ def identifier_parameters() -> list[NodeParameter]:
         NodeParameter(
             "max_gap_s",
             monitor.max_gap_s,
-            "a longer silence in the state messages is a gap",
+            "data missing for longer is a gap: observer restarted, residual noise learnt again",
             "s",
             0.001,
             60.0,
@@ -203,6 +227,15 @@ def identifier_parameters() -> list[NodeParameter]:
             read_only=True,
         ),
         NodeParameter(
+            "input_timeout_s",
+            1.0,
+            "an input silent this long (node's clock or wall time) is reported as silent",
+            "s",
+            0.05,
+            3600.0,
+            read_only=True,
+        ),
+        NodeParameter(
             "publish_rate_hz",
             10.0,
             "rate of identified_parameters and diagnostics",
@@ -221,11 +254,6 @@ def identifier_parameters() -> list[NodeParameter]:
             NodeParameter(f"detection.{f.name}", float(getattr(defaults, f.name)), meaning, unit, 0.0, 1e6)
         )
     return specs
-
-
-def fittable_effects(airframe_effects: list[str]) -> list[str]:
-    """The airframe's own effects that the online identifier can fit (those with a linear parameter)."""
-    return [e for e in airframe_effects if any(p.linear for p in EFFECTS[e].parameter_list(None))]
 
 
 class IdentifierNode(Node):
@@ -277,6 +305,10 @@ class IdentifierNode(Node):
         }
         self._last_stamp_ns = 0
         self._published_effectiveness: tuple[FloatArray, FloatArray] | None = None
+        inputs = ["motor_speeds", *(["odom"] if p["input"] == "odom" else ["pose", "imu"])]
+        self._inputs = InputWatch(inputs, p["input_timeout_s"])
+        self._clock_ns: int | None = None  # the node's clock at the last message, to see it go back
+        self._used: dict[str, Any] = {}  # per topic, the last message used: the same again is a resend
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
         self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
@@ -288,12 +320,7 @@ class IdentifierNode(Node):
         if p["input"] == "odom":
             self.create_subscription(Odometry, "odom", self._guarded(self._on_odometry), QUEUE_DEPTH)
         else:
-            self._fusion = PoseImuFusion(
-                self.monitor.diagnoser.model.gravity_m_s2,
-                p["max_gap_s"],
-                p["motor_speed_max_age_s"],
-                limits=self.monitor.limits,
-            )
+            self._fusion = self._new_fusion()
             # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
             sensor_qos = QoSProfile(
                 depth=QUEUE_DEPTH,
@@ -306,6 +333,8 @@ class IdentifierNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         wall = steady_clock()
         self.create_timer(1.0 / p["publish_rate_hz"], self._guarded(self._publish_status), clock=wall)
+        # Four checks per timeout: a check later than two periods means this node itself stalled.
+        self.create_timer(p["input_timeout_s"] / 4, self._guarded(self._check_inputs), clock=wall)
         self.create_timer(1.0, self._guarded(self._flush_record), clock=wall)
         for note in self.monitor.notes:
             logger.info(f"record: {note}")
@@ -361,44 +390,100 @@ class IdentifierNode(Node):
 
         return run
 
-    def _stamp_refusal(self, topic: str, stamp: Any) -> Refusal | None:
-        """Why a message's stamp is refused (in the future by the node's clock, or older), or None."""
-        return self._stamps[topic].check(stamp_to_ns(stamp), self.get_clock().now().nanoseconds, topic)
+    def _new_fusion(self) -> PoseImuFusion:
+        return PoseImuFusion(
+            self.monitor.diagnoser.model.gravity_m_s2,
+            self._params["max_gap_s"],
+            self._params["motor_speed_max_age_s"],
+            limits=self.monitor.limits,
+        )
+
+    def _arrived(self, topic: str, message: Any) -> bool:
+        """Note a message of ``topic``; False for a resend of the last one used (ignored, only counted).
+
+        Every other message is noted, refused or not: for the input watch (a peer sending bad messages
+        is not silent) and to see the node's clock go back. A resend (a lockstep simulator sends its
+        newest odometry again while it waits for a command) is no new data, no error either.
+        """
+        now_ns = self.get_clock().now().nanoseconds
+        back_ns = (self._clock_ns or 0) - now_ns
+        if back_ns > self._params["future_stamp_tolerance_s"] * 1e9:
+            self._start_new_time_line(back_ns * 1e-9)
+        self._clock_ns = now_ns
+        if self._used.get(topic) == message:
+            self._inputs.resent(topic)
+            return False
+        back = self._inputs.heard(topic, now_ns, time.monotonic_ns())
+        if back is not None:
+            self.get_logger().info(back)
+        return True
+
+    def _refusal(self, topic: str, parsed: object, stamp: Any) -> Refusal | None:
+        """Why a new message of ``topic`` is refused (the parser's reason, or its stamp's), or None."""
+        if isinstance(parsed, Refusal):
+            return parsed
+        # The stamp gate: in the future by the node's clock, or older than the newest.
+        assert self._clock_ns is not None
+        return self._stamps[topic].check(stamp_to_ns(stamp), self._clock_ns, topic)
+
+    def _start_new_time_line(self, back_s: float) -> None:
+        """The clock went back (a restarted simulator): stamps start over, and so does the monitor."""
+        self.get_logger().warning(
+            f"the clock went back by {back_s:.3f} s (a restarted simulator?): new time line, observer "
+            "restarted and residual noise learnt again before any alarm; estimates kept"
+        )
+        self.monitor.restart()
+        self._used.clear()
+        if self._params["input"] == "pose_imu":
+            self._fusion = self._new_fusion()
 
     def _on_motor_speeds(self, message: JointState) -> None:
-        result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
-        if isinstance(result, Refusal):
-            self._refused["motor_speeds"].refuse(result.reason, result.detail)
+        if not self._arrived("motor_speeds", message):
             return
-        refusal = self._stamp_refusal("motor_speeds", message.header.stamp)
-        outcome = refusal or self.monitor.rotor_speeds(result.stamp_ns, result.speeds_rad_s)
-        if isinstance(outcome, (Refused, Refusal)):
+        result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
+        refusal = self._refusal("motor_speeds", result, message.header.stamp)
+        if refusal is not None:
+            self._refused["motor_speeds"].refuse(refusal.reason, refusal.detail)
+            return
+        assert not isinstance(result, Refusal)
+        outcome = self.monitor.rotor_speeds(result.stamp_ns, result.speeds_rad_s)
+        if isinstance(outcome, Refused):
             self._refused["motor_speeds"].refuse(outcome.reason, outcome.detail)
             return
+        self._used["motor_speeds"] = message
         for step in outcome:
             self._report(step)
 
     def _on_odometry(self, message: Odometry) -> None:
+        if not self._arrived("odom", message):
+            return
         state = state_from_odometry(message)
-        refusal = state if isinstance(state, Refusal) else self._stamp_refusal("odom", message.header.stamp)
+        refusal = self._refusal("odom", state, message.header.stamp)
         if refusal is not None:
             self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
         assert not isinstance(state, Refusal)
-        self._take(StateSample(stamp_to_ns(message.header.stamp), *state))
+        if self._take(StateSample(stamp_to_ns(message.header.stamp), *state)):
+            self._used["odom"] = message
 
     def _on_pose(self, message: PoseStamped) -> None:
+        if not self._arrived("pose", message):
+            return
         pose = pose_from_message(message)
-        refusal = pose if isinstance(pose, Refusal) else self._stamp_refusal("pose", message.header.stamp)
+        refusal = self._refusal("pose", pose, message.header.stamp)
         if refusal is None:
             assert not isinstance(pose, Refusal)
             refusal = self._fusion.pose(stamp_to_ns(message.header.stamp), *pose)
         if refusal is not None:
             self._refused["state"].refuse(refusal.reason, refusal.detail)
+            return
+        self._used["pose"] = message
 
     def _on_imu(self, message: Imu) -> None:
+        if not self._arrived("imu", message):
+            return
         imu = imu_from_message(message)
-        refusal = imu if isinstance(imu, Refusal) else self._stamp_refusal("imu", message.header.stamp)
+        refusal = self._refusal("imu", imu, message.header.stamp)
         if refusal is not None:
             self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
@@ -408,18 +493,20 @@ class IdentifierNode(Node):
             self._skipped.refuse(sample.reason, sample.detail)
         elif isinstance(sample, Refusal):
             self._refused["state"].refuse(sample.reason, sample.detail)
-        else:
-            self._take(sample)
+        elif self._take(sample):
+            self._used["imu"] = message
 
-    def _take(self, sample: StateSample) -> None:
+    def _take(self, sample: StateSample) -> bool:
+        """Give a state sample to the monitor; whether it took it."""
         outcome = self.monitor.state(
             sample.stamp_ns, sample.p_WB_W, sample.v_WB_W, sample.q_WB, sample.w_WB_B, sample.a_WB_W
         )
         if isinstance(outcome, Refused):
             self._refused["state"].refuse(outcome.reason, outcome.detail)
-            return
+            return False
         for step in outcome:
             self._report(step)
+        return True
 
     # ------------------------------------------------------------------ outputs
 
@@ -468,23 +555,32 @@ class IdentifierNode(Node):
         self._effectiveness_pub.publish(rotor_effectiveness_message(estimate, std))
         self._published_effectiveness = (estimate, std)
 
+    def _check_inputs(self) -> None:
+        for silent in self._inputs.check(self.get_clock().now().nanoseconds, time.monotonic_ns()):
+            self.get_logger().warning(silent)
+
     def _publish_status(self) -> None:
         stamp = stamp_from_ns(self._last_stamp_ns)
         self._parameters_pub.publish(self._parameters_message(stamp))
-        diagnostics = DiagnosticArray()
-        diagnostics.header.stamp = stamp
-        for report in self.monitor.reports():
-            diagnostics.status.append(
-                DiagnosticStatus(
-                    level=LEVELS[report.level],
-                    name=report.name,
-                    message=report.message,
-                    hardware_id=self.airframe.name,
-                    values=[KeyValue(key=k, value=v) for k, v in report.values.items()],
-                )
+        inputs = self._inputs.status()
+        self._diagnostics_pub.publish(
+            DiagnosticArray(
+                header=Header(stamp=stamp),
+                status=[self._status(inputs.level, "inputs", inputs.message, inputs.values)],
             )
-        self._diagnostics_pub.publish(diagnostics)
+        )
+        rotors = [self._status(r.level, r.name, r.message, r.values) for r in self.monitor.reports()]
+        self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=stamp), status=rotors))
         self._publish_effectiveness()
+
+    def _status(self, level: str, name: str, message: str, values: dict[str, str]) -> DiagnosticStatus:
+        return DiagnosticStatus(
+            level=LEVELS[level],
+            name=name,
+            message=message,
+            hardware_id=self.airframe.name,
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
 
     def _parameters_message(self, stamp: Any) -> DiagnosticArray:
         message = DiagnosticArray()

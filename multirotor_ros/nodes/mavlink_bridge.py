@@ -5,12 +5,21 @@ ground station (UDP, 127.0.0.1:14550 by default). The MAVLink work runs in a thr
 (:class:`~multirotor_ros.mavlink.bridge.MavlinkBridge`); the executor only serves subscriptions and
 parameters. Which side owns the physics, and why, is described in :mod:`multirotor_ros.mavlink`:
 
-- ``internal_physics: true`` (default): the node steps its own VehicleSimulator in lockstep with the
-  flight stack and publishes ``odom`` (at ``publish_rate_hz``), ``imu`` (the IMU the flight stack reads:
-  one per PX4 step, one per physics step for ArduPilot), ``motor_speeds`` (the ESC rate of the
-  airframe's sensors) and, with ``publish_clock``, ``clock`` (every step); stamps are simulated time.
+- ``internal_physics: true`` (default): the node steps its own vehicle in lockstep with the flight
+  stack (each frame by exactly its Δt, :mod:`multirotor_ros.mavlink.physics`) and publishes, on simulated
+  time, after each answer once no frame waits (:meth:`~multirotor_ros.mavlink.bridge.MavlinkBridge.defer`:
+  an odom message costs more than SITL's own frame), ``odom`` and ``motor_speed_cmd`` (at
+  ``publish_rate_hz``), ``imu`` (readings the flight stack got, at the airframe's
+  ``sensors.imu_rate_hz``), ``motor_speeds`` (the ESC rate of the airframe's sensors) and, with
+  ``publish_clock``, ``clock`` (with each odom). ``fault_motor`` and
+  ``fault_effectiveness`` (settable at run time, as on the simulator node) inject a rotor fault into it.
 - ``internal_physics: false``: subscribes ``odom``, ``imu`` and ``motor_speeds`` of a simulator node and
   forwards them. ``flight_stack: none`` (ground station only) requires this mode.
+
+The flight stack's outputs reach the rotors through ``rotor_channels``: empty, the map is derived from
+the airframe's rotor geometry and the flight stack's published motor numbering; given, it is checked
+against it and refused with the reason if a rotor would push the wrong way
+(:mod:`multirotor_ros.mavlink.motor_order`). The log says which frame and map are in use.
 
 Always: ``motor_speed_cmd`` (flight-stack actuator outputs through the motor map) and ``setpoint``
 (SET_POSITION_TARGET_LOCAL_NED from the ground station, world ENU). Refused input, on any link or
@@ -23,6 +32,7 @@ a far-future stamp must not become the flight stack's time).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -67,8 +77,12 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.simulator import fault_parameters
+from multirotor_ros.nodes.vehicles import VehicleSpec
 from multirotor_ros.plausibility import StampGate, StateLimits
 from multirotor_ros.refusals import Refusal, RefusalCounter
+from multirotor_ros.simulation import Reading
+from multirotor_ros.simulation.sensors import SensorConfig
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
 NODE_NAME = "mavlink_bridge"
@@ -114,10 +128,16 @@ PARAMETERS = (
         read_only=True,
     ),
     NodeParameter(
-        "publish_rate_hz", 250.0, "rate of odom in internal-physics mode", "Hz", 1.0, 1000.0, read_only=True
+        "publish_rate_hz",
+        250.0,
+        "internal physics: rate of odom, motor_speed_cmd and clock (simulated time)",
+        "Hz",
+        1.0,
+        1000.0,
+        read_only=True,
     ),
     NodeParameter(
-        "publish_clock", False, "internal physics: publish simulated time on clock", read_only=True
+        "publish_clock", False, "internal physics: publish simulated time on /clock", read_only=True
     ),
     NodeParameter(
         "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
@@ -129,8 +149,8 @@ PARAMETERS = (
     NodeParameter(
         "rotor_channels",
         "",
-        "flight-stack output channel (1-based) of rotor 1..N, comma separated; "
-        "empty = channel k drives rotor k",
+        "flight-stack output channel (1-based) of rotor 1..N, comma separated; empty = derived from the "
+        "rotor geometry and the flight stack's motor numbering (a given map is checked against it)",
         read_only=True,
     ),
     NodeParameter(
@@ -152,6 +172,12 @@ PARAMETERS = (
         read_only=True,
     ),
     NodeParameter("gps_rate_hz", 10.0, "PX4: HIL_GPS rate", "Hz", 5.0, 10.0, read_only=True),
+    NodeParameter(
+        "measure_timing",
+        False,
+        "keep each lockstep frame's answer time and the flight stack's, logged as percentiles at shutdown",
+        read_only=True,
+    ),
     NodeParameter("gcs_enabled", True, "send telemetry to a ground station", read_only=True),
     NodeParameter("gcs_address", "127.0.0.1", "ground station address", read_only=True),
     NodeParameter("gcs_port", 14550, "ground station UDP port", "port", 1, 65535, read_only=True),
@@ -249,7 +275,7 @@ _SPECS = {spec.name: spec for spec in PARAMETERS}
 
 
 def parse_rotor_channels(text: str) -> list[int] | None:
-    """``"1,4,2,3"`` -> [1, 4, 2, 3]; '' -> None (the default order)."""
+    """``"1,4,2,3"`` -> [1, 4, 2, 3]; '' -> None (derived from the airframe's geometry)."""
     if not text.strip():
         return None
     try:
@@ -266,7 +292,6 @@ class MavlinkBridgeNode(Node):
     def __init__(self, **kwargs: Any):
         super().__init__(NODE_NAME, **kwargs)
         p = declare_parameters(self, PARAMETERS)
-        self.add_on_set_parameters_callback(lambda parameters: check_parameters(_SPECS, parameters))
         if p["flight_stack"] not in FLIGHT_STACKS:
             raise ValueError(
                 f"parameter flight_stack {p['flight_stack']!r}: choose one of {', '.join(FLIGHT_STACKS)}"
@@ -277,8 +302,19 @@ class MavlinkBridgeNode(Node):
             self.get_logger().info(
                 "flight_stack none: physics comes from the simulator node (internal_physics ignored)"
             )
+        # Faults go into the physics this node owns; with external physics they are the simulator node's.
+        fault_rows = fault_parameters(VehicleSpec(""), self.airframe.n_rotors) if self.internal else []
+        specs = _SPECS | {row.name: row for row in fault_rows}
+        fault = declare_parameters(self, fault_rows)
+        self.add_on_set_parameters_callback(lambda parameters: check_parameters(specs, parameters))
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        stack = p["flight_stack"]
         channels = RotorChannels(
-            self.airframe, parse_rotor_channels(p["rotor_channels"]), p["pwm_min_us"], p["pwm_max_us"]
+            self.airframe,
+            parse_rotor_channels(p["rotor_channels"]),
+            p["pwm_min_us"],
+            p["pwm_max_us"],
+            flight_stack=None if stack == "none" else stack,
         )
         home = Home(
             p["home_latitude_deg"],
@@ -299,13 +335,11 @@ class MavlinkBridgeNode(Node):
         self.command_publisher = self.create_publisher(JointState, "motor_speed_cmd", qos)
         self.setpoint_publisher = self.create_publisher(PoseStamped, "setpoint", qos)
         self.physics: SimulatorPhysics | None = None
+        self._command_period_s = 1.0 / p["publish_rate_hz"]
+        self._next_command_s = 0.0
         if self.internal:
-            # The IMU samples once per flight-stack step: PX4 steps lockstep_step_s, ArduPilot's frames
-            # (usually 1 kHz or more) are met by sampling at every physics step.
-            imu_period_s = p["lockstep_step_s"] if p["flight_stack"] == "px4" else 1.0 / p["physics_rate_hz"]
             self.physics = SimulatorPhysics.for_airframe(
                 self.airframe,
-                imu_period_s,
                 seed=p["seed"],
                 noise=p["sensor_noise"],
                 physics_rate_hz=p["physics_rate_hz"],
@@ -339,8 +373,11 @@ class MavlinkBridgeNode(Node):
                 p["lockstep_step_s"],
                 p["gps_rate_hz"],
                 system_id=p["system_id"],
+                measure_timing=p["measure_timing"],
             ),
-            ardupilot=ArduPilotConfig(p["flight_stack_address"], stack_port or ARDUPILOT_PORT),
+            ardupilot=ArduPilotConfig(
+                p["flight_stack_address"], stack_port or ARDUPILOT_PORT, measure_timing=p["measure_timing"]
+            ),
             ground_station=GroundStationConfig(
                 p["gcs_address"],
                 p["gcs_port"],
@@ -370,6 +407,10 @@ class MavlinkBridgeNode(Node):
         )
         signed = ", signed commands only" if signing.enabled else ""
         self.get_logger().info(f"{self.airframe.name}: {where}, {gcs}{signed}; {mode}")
+        if stack != "none":
+            self.get_logger().info(f"{stack} outputs: {channels.describe()}")
+        if fault_rows and fault["fault_motor"]:
+            self._inject_fault(fault["fault_motor"], fault["fault_effectiveness"])
 
     # ------------------------------------------------------------------ bridge -> ROS (bridge thread)
 
@@ -391,7 +432,16 @@ class MavlinkBridgeNode(Node):
                 raise
 
     def _publish_command(self, speeds_rad_s: FloatArray, t_s: float) -> None:
-        self._publish(self.command_publisher, joint_state_from_rotor_speeds(speeds_rad_s, self._stamp(t_s)))
+        if self.internal:
+            # The flight stack's rate (1,200 frames a second from ArduPilot) is for the physics this node
+            # owns; the graph gets the newest command at publish_rate_hz of simulated time.
+            if t_s < self._next_command_s:
+                return
+            self._next_command_s = t_s + self._command_period_s
+        stamp = self._stamp(t_s)
+        self.bridge.defer(
+            lambda: self._publish(self.command_publisher, joint_state_from_rotor_speeds(speeds_rad_s, stamp))
+        )
 
     def _publish_setpoint(self, setpoint: Setpoint) -> None:
         q = euler_to_quat(np.array([0.0, 0.0, setpoint.yaw_W_rad]))
@@ -400,18 +450,50 @@ class MavlinkBridgeNode(Node):
 
     def _publish_state(self, state: VehicleState) -> None:
         assert self.physics is not None
-        sensors = self.physics.sensor_config
+        if state.t_s < self._next_command_s - self._command_period_s:
+            self._next_command_s = 0.0  # time went back: the flight stack restarted
+        imu_config = self.physics.imu_config
+        # One deferred item per message: the flight stack's next frame may come between any two.
         for reading in self.physics.take_readings():
-            stamp = stamp_from_ns(reading.t_ns)
-            if reading.kind == "odom":
-                self._publish(self.odom_publisher, odometry_message(reading.data, stamp, *self._frames))
-            elif reading.kind == "imu":
-                message = simulated_imu_message(stamp, self._frames[1], reading.data, sensors)
-                self._publish(self.imu_publisher, message)
-            elif reading.kind == "motor_speeds":
-                self._publish(self.speeds_publisher, joint_state_from_rotor_speeds(reading.data, stamp))
-        if self.clock_publisher is not None:
-            self._publish(self.clock_publisher, Clock(clock=stamp_from_ns(round(state.t_s * 1e9))))
+            self.bridge.defer(partial(self._publish_reading, reading, imu_config))
+            if reading.kind == "odom" and self.clock_publisher is not None:
+                self.bridge.defer(partial(self._publish_clock, reading.t_ns))
+
+    def _publish_reading(self, reading: Reading, imu_config: SensorConfig) -> None:
+        stamp = stamp_from_ns(reading.t_ns)
+        if reading.kind == "odom":
+            self._publish(self.odom_publisher, odometry_message(reading.data, stamp, *self._frames))
+        elif reading.kind == "imu":
+            message = simulated_imu_message(stamp, self._frames[1], reading.data, imu_config)
+            self._publish(self.imu_publisher, message)
+        elif reading.kind == "motor_speeds":
+            self._publish(self.speeds_publisher, joint_state_from_rotor_speeds(reading.data, stamp))
+
+    def _publish_clock(self, t_ns: int) -> None:
+        self._publish(self.clock_publisher, Clock(clock=stamp_from_ns(t_ns)))
+
+    # ------------------------------------------------------------------ faults (internal physics)
+
+    def _apply_parameters(self, parameters: list[Any]) -> None:
+        changed = {p.name: p.value for p in parameters}
+        if "fault_motor" in changed or "fault_effectiveness" in changed:
+            motor = self.get_parameter("fault_motor").value
+            self._inject_fault(motor, float(self.get_parameter("fault_effectiveness").value))
+
+    def _inject_fault(self, motor: int, effectiveness: float) -> None:
+        physics = self.physics
+        assert physics is not None
+
+        def inject() -> None:
+            physics.inject_fault(motor, effectiveness)
+            t_s = physics.t_ns * 1e-9
+            self.get_logger().warning(
+                f"fault injected at t = {t_s:.3f} s: rotor {motor} effectiveness {effectiveness:g}"
+                if motor
+                else f"fault cleared at t = {t_s:.3f} s"
+            )
+
+        self.bridge.run_in_loop(inject)  # the loop's thread owns the physics
 
     # ------------------------------------------------------------------ ROS -> bridge (external physics)
 
@@ -466,6 +548,16 @@ class MavlinkBridgeNode(Node):
     def destroy_node(self) -> None:
         """Stop the MAVLink thread and close its sockets before the node goes."""
         self._loop.stop()
+        for link in (self.bridge.px4, self.bridge.ardupilot):
+            if link is not None and link.times is not None:
+                summary = ", ".join(f"{key} {value:.4g}" for key, value in link.times.summary_ms().items())
+                ardupilot = self.bridge.ardupilot
+                missed = ardupilot.missed_frames if ardupilot else 0
+                repeated = ardupilot.repeated_frames if ardupilot else 0
+                self.get_logger().info(
+                    f"frame timing: {summary}; simulated {self.bridge.simulation.latest.t_s:.3f} s, "
+                    f"{missed} frames missed, {repeated} repeated"
+                )
         super().destroy_node()
 
 

@@ -1,0 +1,222 @@
+"""Lockstep against the real ArduCopter: the bridge's answer per frame beside SITL's own, and the speed.
+
+    .venv/bin/python bench/bench_ardupilot.py [--speedups 1,5,10] [--rate 1200] [--airframe quad_x]
+                                              [--via library,node] [--rounds 1] [--json FILE]
+
+ArduCopter SITL (shared/flight_stacks/ardupilot, see SOURCE.md there) flies the test mission of
+:mod:`multirotor_ros.mavlink.arducopter` (pre-arm checks and EKF, GUIDED, arm, 5 m, hover, 10 m north
+turning east, LAND, disarm) against the bridge, once per requested speedup and way of running the bridge:
+
+- ``library``: :class:`~multirotor_ros.mavlink.bridge.MavlinkBridge` with its own physics, its loop in
+  this process's main thread, no ROS; the ground station runs in a process of its own, so that nothing
+  else shares the bridge's interpreter;
+- ``node``: the ``mavlink_bridge`` node as ``multirotor node`` starts it (publishing ``odom``, ``imu``,
+  ``motor_speeds``, ``motor_speed_cmd`` and ``/clock`` to a ROS graph of its own, ROS_DOMAIN_ID random,
+  localhost only); the ground station in this process.
+
+Per run: the real-time factor achieved (ArduCopter's simulated seconds per wall second, from connecting
+to disarming) against the requested speedup; the bridge's answer time per frame (the servo packet's
+arrival, kernel time stamp, to our answer leaving) and SITL's own time per frame (our answer leaving to
+its next packet's arrival: at 1200 Hz two frames in three SITL only integrates, the third runs
+ArduCopter's 400 Hz loop), p50 / p95 / p99; the bridge process's CPU use; frames, missed and repeated
+frames. The load average is printed with every figure: the machine may be shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import re
+import resource
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+
+def _cpu_s(pid: int | None = None) -> float:
+    if pid is None:
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        return usage.ru_utime + usage.ru_stime
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _sitl(workdir: Path, port: int, airframe_name: str, speedup: float, rate_hz: int):
+    from multirotor_ros.mavlink.actuators import RotorChannels
+    from multirotor_ros.mavlink.arducopter import ArduCopterSitl, find_arducopter, frame_parameters
+    from multirotor_ros.model.airframe import load_airframe
+
+    binary = find_arducopter()
+    if binary is None:
+        raise SystemExit("no ArduCopter SITL binary: set MULTIROTOR_ARDUCOPTER or see shared/flight_stacks")
+    frame = RotorChannels(load_airframe(airframe_name)).map.frame
+    return ArduCopterSitl(binary, workdir, port, frame_parameters(frame), speedup=speedup, rate_hz=rate_hz)
+
+
+def ground_station(port: int) -> dict[str, float]:
+    """Fly the mission; ArduCopter's phase times and the wall time from connecting to disarming."""
+    from multirotor_ros.mavlink.arducopter import GroundStation, fly
+
+    start = time.monotonic()
+    station = GroundStation(port)
+    try:
+        times = fly(station)
+    finally:
+        station.close()
+    return {**asdict(times), "wall_s": time.monotonic() - start}
+
+
+def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
+    from multirotor_ros.mavlink.actuators import RotorChannels
+    from multirotor_ros.mavlink.ardupilot import ArduPilotConfig
+    from multirotor_ros.mavlink.bridge import BridgeConfig, BridgeOutputs, MavlinkBridge
+    from multirotor_ros.mavlink.physics import SimulatorPhysics
+    from multirotor_ros.model.airframe import load_airframe
+
+    airframe = load_airframe(airframe_name)
+    config = BridgeConfig(
+        "ardupilot", ardupilot=ArduPilotConfig(port=0, measure_timing=True), ground_station=None
+    )
+    outputs = BridgeOutputs(lambda speeds, t: None, lambda state: None, lambda setpoint: None)
+    bridge = MavlinkBridge(config, RotorChannels(airframe), SimulatorPhysics.for_airframe(airframe), outputs)
+    assert bridge.ardupilot is not None and bridge.ardupilot.times is not None
+    sitl = _sitl(workdir, bridge.ardupilot.endpoint.port, airframe_name, speedup, rate_hz).start()
+    station = subprocess.Popen(
+        [sys.executable, __file__, "--role", "ground-station", "--port", str(sitl.mavlink_port)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    flown = threading.Event()
+
+    def watch() -> None:
+        station.wait()
+        flown.set()
+
+    threading.Thread(target=watch, daemon=True).start()
+    try:
+        cpu = _cpu_s()
+        started = time.monotonic()
+        bridge.run(flown)  # the loop in this thread, as the node's own thread runs it
+        cpu_share = (_cpu_s() - cpu) / (time.monotonic() - started)
+    finally:
+        sitl.stop()
+        bridge.close()
+    if station.returncode != 0:
+        raise RuntimeError(f"the flight failed; SITL's log ends:\n{sitl.log_tail()}")
+    assert station.stdout is not None
+    flight = json.loads(station.stdout.read().strip().splitlines()[-1])
+    return {
+        **flight,
+        **bridge.ardupilot.times.summary_ms(),
+        "cpu_share": cpu_share,
+        "missed_frames": bridge.ardupilot.missed_frames,
+        "repeated_frames": bridge.ardupilot.repeated_frames,
+    }
+
+
+def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
+    port = _free_udp_port()
+    environment = dict(
+        os.environ, ROS_DOMAIN_ID=str(random.randint(1, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"
+    )
+    parameters = {
+        "airframe": airframe_name, "flight_stack": "ardupilot", "flight_stack_port": port,
+        "publish_clock": "true", "gcs_enabled": "false", "measure_timing": "true",
+    }  # fmt: skip
+    command = [sys.executable, "-m", "multirotor_ros.cli", "node", "mavlink_bridge", "--ros-args"]
+    for name, value in parameters.items():
+        command += ["-p", f"{name}:={value}"]
+    log_path = workdir / "node.log"
+    with open(log_path, "w") as log:
+        node = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
+    sitl = _sitl(workdir, port, airframe_name, speedup, rate_hz)
+    try:
+        deadline = time.monotonic() + 60.0
+        while "outputs:" not in log_path.read_text():
+            if node.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the node did not start:\n{log_path.read_text()}")
+            time.sleep(0.1)
+        sitl.start()
+        cpu = _cpu_s(node.pid)
+        started = time.monotonic()
+        flight = ground_station(sitl.mavlink_port)
+        cpu_share = (_cpu_s(node.pid) - cpu) / (time.monotonic() - started)
+    finally:
+        sitl.stop()
+        node.send_signal(2)
+        node.wait(30)
+    text = log_path.read_text()
+    match = re.search(r"frame timing: (.*); simulated .*?, (\d+) frames missed, (\d+) repeated", text)
+    if match is None:
+        raise RuntimeError(f"no timing in the node's log:\n{text[-3000:]}")
+    timing = {
+        key: float(value) for key, value in (item.rsplit(" ", 1) for item in match.group(1).split(", "))
+    }
+    return {
+        **flight,
+        **timing,
+        "cpu_share": cpu_share,
+        "missed_frames": int(match.group(2)),
+        "repeated_frames": int(match.group(3)),
+    }
+
+
+def _free_udp_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _line(via: str, speedup: float, rate_hz: int, run: dict[str, float]) -> str:
+    factor = run["landed_s"] / run["wall_s"]
+    return (
+        f"  {via:7s} speedup {speedup:4g}: {factor:5.2f}x real time ({run['frames']:.0f} frames at "
+        f"{rate_hz} Hz, "
+        f"{run['missed_frames']:.0f} missed, {run['repeated_frames']:.0f} repeated); answer p50/p95/p99 "
+        f"{run['answer_p50_ms']:.3f}/{run['answer_p95_ms']:.3f}/{run['answer_p99_ms']:.3f} ms, SITL "
+        f"{run['flight_stack_p50_ms']:.3f}/{run['flight_stack_p95_ms']:.3f}/"
+        f"{run['flight_stack_p99_ms']:.3f} ms; "
+        f"bridge CPU {100 * run['cpu_share']:.0f} % of a core; take-off to 5 m "
+        f"{run['reached_s'] - run['armed_s']:.1f} s; load average {os.getloadavg()[0]:.1f}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--speedups", default="1,5,10", help="requested SITL speedups, comma separated")
+    parser.add_argument("--rate", type=int, default=1200, help="SITL frame rate [Hz] (SIM_RATE_HZ)")
+    parser.add_argument("--airframe", default="quad_x")
+    parser.add_argument("--via", default="library,node", help="library, node or both (comma separated)")
+    parser.add_argument("--rounds", type=int, default=1, help="runs of each combination")
+    parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument("--role", choices=["ground-station"], help=argparse.SUPPRESS)
+    parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.role == "ground-station":
+        print(json.dumps(ground_station(args.port)), flush=True)
+        return 0
+
+    runners = {"library": run_library, "node": run_node}
+    print(f"{args.airframe}, ArduCopter SITL at {args.rate} Hz, {os.cpu_count()} cores")
+    results: list[dict[str, object]] = []
+    for _ in range(args.rounds):
+        for speedup in (float(s) for s in args.speedups.split(",")):
+            for via in args.via.split(","):
+                with tempfile.TemporaryDirectory(prefix="bench_ardupilot_") as scratch:
+                    run = runners[via](args.airframe, speedup, args.rate, Path(scratch))
+                print(_line(via, speedup, args.rate, run), flush=True)
+                results.append({"via": via, "speedup": speedup, "rate_hz": args.rate, **run})
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
