@@ -20,12 +20,14 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from ros_harness import CpuHog, NodeProcess, Recorder, RosProbe
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
 
 from multirotor_ros.control.setpoint_queue import SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray
-from multirotor_ros.nodes.messages import stamp_from_ns
+from multirotor_ros.nodes.messages import odometry_message, stamp_from_ns, stamp_to_ns
 from multirotor_ros.nodes.simulator import STALL_WARNING_S
 from multirotor_ros.simulation.flight import ControlTrace, SetpointSchedule, simulate_flight
 from multirotor_ros.simulation.pacing import NS_PER_S, ControlTiming, Lockstep, StateForTick
@@ -283,3 +285,60 @@ def test_a_lockstep_simulator_waits_for_a_stalled_controller_and_says_which_inpu
         controller.process.send_signal(signal.SIGCONT)
         controller.stop()
         simulator.stop()
+
+
+@pytest.mark.ros
+def test_a_command_lost_in_lockstep_is_sent_again_when_the_simulator_resends_its_state(
+    probe: RosProbe, tmp_path
+) -> None:
+    """The probe plays a lockstep simulator whose queue dropped the command of the instant it stands at.
+
+    Seen under load: 18 bad commands from another node in a burst overflowed the simulator's
+    motor_speed_cmd queue, the controller's command for t went with them, and the loop stood at t for ever.
+    """
+    namespace = "/lost"
+    commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState)
+    clock = probe.publisher(f"{namespace}/clock", Clock)
+    odom = probe.publisher(f"{namespace}/odom", Odometry)
+    hover = np.zeros(13)
+    hover[2], hover[6] = 1.0, 1.0  # 1 m up, level (w = 1)
+    with NodeProcess(
+        "controller",
+        tmp_path / "controller.log",
+        namespace=namespace,
+        parameters={"use_sim_time": True},
+        remaps={"/clock": f"{namespace}/clock"},
+    ) as controller:
+        probe.wait_for_subscribers(odom, timeout=STARTUP_TIMEOUT_S)
+        probe.wait_for_subscribers(clock, timeout=STARTUP_TIMEOUT_S)
+
+        def commanded(stamp_ns: int, count: int) -> list[JointState]:
+            return commands.wait_for(
+                lambda m: stamp_to_ns(m.header.stamp) == stamp_ns, count=count, timeout=30.0
+            )
+
+        def stand_at(stamp_ns: int) -> None:
+            odom.publish(odometry_message(hover, stamp_from_ns(stamp_ns)))
+            clock.publish(Clock(clock=stamp_from_ns(stamp_ns)))
+
+        period_ns = 4_000_000
+        # Until the first command, as the simulator does: the clock is best effort, and its first
+        # messages can go before the controller's reader has matched the probe.
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not commands.messages and time.monotonic() < deadline:
+            stand_at(period_ns)
+            time.sleep(0.25)
+        for k in range(1, 6):
+            stand_at(k * period_ns)
+            commanded(k * period_ns, count=1)
+        # The command for 5 periods is "lost": the simulator, still at that instant, resends its state.
+        time.sleep(0.3)
+        stand_at(5 * period_ns)
+        first, again = commanded(5 * period_ns, count=2)[:2]
+        assert list(again.velocity) == list(first.velocity) and list(again.name) == list(first.name)
+        # Time moves on: one command per instant again, none repeated without a resend.
+        stand_at(6 * period_ns)
+        commanded(6 * period_ns, count=1)
+        time.sleep(0.3)
+        assert len([m for m in commands.messages if stamp_to_ns(m.header.stamp) == 6 * period_ns]) == 1
+        controller.assert_running()

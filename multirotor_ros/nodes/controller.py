@@ -13,6 +13,10 @@ time and each command is stamped with the simulated time it was computed at. The
 odometry of one instant come on two topics in either order: on simulated time a tick whose odometry is
 due but not yet here waits for it (simulation/pacing.py ``StateForTick``), so that in lockstep every
 command is computed from the state of its own instant and a flight is the same on any machine.
+A lockstep simulator that waits resends the state it stands at; the same state again, with a command
+already sent for its instant, means that command was lost (a burst of other messages on
+``motor_speed_cmd`` can overflow the simulator's queue), so it is sent again: without that the loop
+would wait for ever.
 Until the first setpoint the vehicle holds the pose of the first odometry it received. With no
 odometry for ``odom_timeout_s`` the node stops sending commands (warning logged once) and the
 simulator's watchdog stops the rotors.
@@ -228,6 +232,7 @@ class ControllerNode(Node):
         self._diagnosis: tuple[FloatArray, FloatArray] | None = None  # latest accepted (estimate, std)
         self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
         self._yaw_warned = False
+        self._last_command: JointState | None = None
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
@@ -252,9 +257,17 @@ class ControllerNode(Node):
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
         if self._clock_is_simulated:
-            waiting_tick_ns = self._state_for_tick.state(stamp_to_ns(message.header.stamp))
+            stamp_ns = stamp_to_ns(message.header.stamp)
+            resent = stamp_ns == self._state_for_tick.newest_ns
+            waiting_tick_ns = self._state_for_tick.state(stamp_ns)
             if waiting_tick_ns is not None:
                 self._control(waiting_tick_ns)
+            elif (
+                resent
+                and self._last_command is not None
+                and stamp_to_ns(self._last_command.header.stamp) == stamp_ns
+            ):
+                self._command_pub.publish(self._last_command)
 
     def _on_setpoint(self, message: PoseStamped) -> None:
         frame = message.header.frame_id
@@ -360,7 +373,8 @@ class ControllerNode(Node):
             )
             self.law.reset()
             return
-        self._command_pub.publish(joint_state_from_rotor_speeds(speeds, stamp_from_ns(now_ns)))
+        self._last_command = joint_state_from_rotor_speeds(speeds, stamp_from_ns(now_ns))
+        self._command_pub.publish(self._last_command)
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changes = {p.name: float(p.value) for p in parameters if p.name in GAIN_UNITS}

@@ -136,11 +136,12 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     constructor enables ``faulthandler`` on stderr, which fails when stderr is not a file). Another
     value of the variable: one line on stderr, and the default.
 
-    Simulated time: the EventsExecutor's timers manager does not support a ROS clock driven by
-    ``/clock`` (ros2/rclcpp#2457, the design rclpy's port follows). On this machine under load a lockstep
-    controller's timer on simulated time stopped for good: the clock had reached its next period while
-    the manager was not waiting for it, and the simulator's resent clock, the same time again, is no
-    jump that would wake it. The single-threaded executor evaluates every timer on each wait.
+    Simulated time: rclcpp's events executor, whose design rclpy's follows, does not support a clock
+    driven by ``/clock`` in its timers manager (ros2/rclcpp#2457). rclpy's passes this package's sim-time
+    tests (test_node_entry.py), but it is experimental and a lockstep controller that stops ticking
+    stops the whole loop, so a node on simulated time keeps the single-threaded executor. (A lockstep
+    hang first blamed on it was a lost command, also seen on the single-threaded executor; see
+    nodes/controller.py.)
 
     Under the EventsExecutor an exception that escapes a callback is logged by rclpy at FATAL, with
     its traceback, before it reaches ``run_node``; it ignores callback groups (one thread anyway).

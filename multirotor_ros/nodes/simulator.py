@@ -32,7 +32,8 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   falls behind, the stamps jump forward with the wall clock rather than drifting behind it.
 - Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
   node's namespace: a graph has one time. A simulator that hears another clock in its first
-  ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers.
+  ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers; while
+  the graph lists another clock publisher not heard yet it listens on, up to ``CLOCK_CHECK_MAX_S``.
   Several vehicles share one simulator node and its clock.
 - ``pacing`` (diagnostic_msgs/DiagnosticArray, 1 Hz wall): one status ``simulator pacing`` with the
   target and achieved real-time factors, control periods on time and late, commands, lockstep waits.
@@ -99,6 +100,10 @@ FREE_RUN_SLICE_S = 0.005
 # Wall time to discover other clock publishers before this simulator publishes its own (discovery on a
 # loaded machine was seen to take over a second).
 CLOCK_CHECK_S = 2.0
+# How long a listed but silent clock publisher is waited for: on a loaded machine the graph listed the
+# other simulator 2 s after start while its samples had not come through yet. One listed but silent for
+# this long has stopped (discovery forgets a stopped node late) and does not keep this one from starting.
+CLOCK_CHECK_MAX_S = 15.0
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
 # STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
 RESEND_PERIOD_S = 0.25
@@ -368,6 +373,7 @@ class SimulatorNode(Node):
             self._clock_listener = self.create_subscription(
                 Clock, GRAPH_CLOCK_TOPIC, self._hear_clock, CLOCK_QOS
             )
+            self._clock_watch_since_s = time.monotonic()
             self._clock_watch = self.create_timer(CLOCK_CHECK_S, self._watch_clocks, clock=wall)
         else:
             self._start()
@@ -409,16 +415,19 @@ class SimulatorNode(Node):
 
         Heard, not merely listed in the graph: a simulator that just stopped stays listed for a while
         (discovery forgets it late) but publishes nothing, and a restart must not be refused because of it.
+        A listed publisher not heard yet is listened for until ``CLOCK_CHECK_MAX_S``.
         """
+        others = [
+            name
+            for name in self._publisher_names(GRAPH_CLOCK_TOPIC)
+            if name != self.get_fully_qualified_name()
+        ]
+        heard = self._clock_heard
+        if not heard and others and time.monotonic() - self._clock_watch_since_s < CLOCK_CHECK_MAX_S:
+            return  # checked again in CLOCK_CHECK_S
         self._clock_watch.cancel()
-        heard, self._clock_heard = self._clock_heard, 0
         self.destroy_subscription(self._clock_listener)
         if heard:
-            others = [
-                name
-                for name in self._publisher_names(GRAPH_CLOCK_TOPIC)
-                if name != self.get_fully_qualified_name()
-            ]
             self.get_logger().error(
                 f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others) or 'unknown'}): a "
                 "graph has one simulated time, so this simulator does not start. Fly several vehicles in one "
