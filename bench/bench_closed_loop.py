@@ -111,8 +111,11 @@ def new_domain() -> None:
     os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(101, 200))
 
 
-def spin_events(executor: Any, keep_going: Callable[[], bool]) -> None:
-    """Spin an EventsExecutor in slices, as nodes/entry.py does (its ``spin()`` busy-waits in the wheels)."""
+def spin_in_slices(executor: Any, keep_going: Callable[[], bool]) -> None:
+    """Spin in slices while ``keep_going()``, either executor (the EventsExecutor as nodes/entry.py does).
+
+    The EventsExecutor's ``spin()`` busy-waits in the wheels; both are spun alike so that they stop alike.
+    """
     while keep_going():
         executor.spin_once(timeout_sec=0.1)
 
@@ -131,7 +134,9 @@ class Probe:
         self.executor.add_node(self.node)
         self.running = True
         self.thread = threading.Thread(
-            target=spin_events, args=(self.executor, lambda: self.running and self.context.ok()), daemon=True
+            target=spin_in_slices,
+            args=(self.executor, lambda: self.running and self.context.ok()),
+            daemon=True,
         )
         self.thread.start()
 
@@ -260,14 +265,7 @@ def child_node(name: str, executor_name: str) -> tuple[Any, Any, Callable[[Calla
         executor = SingleThreadedExecutor()
     executor.add_node(node)
 
-    def spin(keep_going: Callable[[], bool]) -> None:
-        if executor_name == "events":
-            spin_events(executor, keep_going)
-        else:
-            while keep_going():
-                executor.spin_once(timeout_sec=0.1)
-
-    return rclpy, node, spin
+    return rclpy, node, lambda keep_going: spin_in_slices(executor, keep_going)
 
 
 def pong(executor_name: str) -> None:
