@@ -250,9 +250,10 @@ class Recorder:
             if self._condition.wait_for(lambda: len(matching()) >= count, timeout):
                 return matching()
             found, total = len(matching()), len(self._messages)
+            last = repr(self._messages[-1])[:600] if self._messages else "none"
         raise AssertionError(
             f"{self.topic}: {found} of the {count} wanted messages within {timeout} s "
-            f"({total} received in all, {self._count_publishers()} publishers seen)"
+            f"({total} received in all, {self._count_publishers()} publishers seen; the last: {last})"
         )
 
 

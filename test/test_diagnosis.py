@@ -116,6 +116,40 @@ def test_alarm_clears_when_the_rotor_recovers():
     assert 300 <= history.index(False, 250) <= 330  # cleared 0.5 s after the residual went away
 
 
+def test_a_stopped_rotor_left_out_to_idle_stays_diagnosed_as_sure_as_its_evidence():
+    # A fault-tolerant controller leaves the stopped rotor out: it idles at a tenth of its hover speed, so
+    # its signature (omega²) is a hundredth and the residual says nothing about it. Before the fix that
+    # silence cleared the alarm after clear_s (the stopped rotor reported OK, the demo's "all rotors OK").
+    airframe = load_airframe("x8_octorotor")
+    hover = np.full(8, Model(airframe).hover_speed_rad_s())
+    idle = hover.copy()
+    idle[2] = 0.1 * hover[2]
+    _, scale = stopped_rotor_scales(Model(airframe))
+    detector = FaultDetector(scale, coaxial_partners(airframe), 1, DetectionSettings(clear_s=0.5))
+    diagnoser_view = RotorDiagnoser(Model(airframe))
+    rng = np.random.default_rng(4)
+    outputs = []
+    for k in range(600):
+        omega = hover if k < 250 else idle
+        signatures = _signatures(airframe, omega)
+        residual = 0.01 * scale * rng.standard_normal(4)
+        if k >= 150:  # rotor 3 stopped: the whole of its commanded thrust is missing
+            residual = residual - signatures[0, :, 2]
+        outputs.append(detector.update(k * 0.01, 0.01, residual[None], signatures))
+    at_idle_start, last = outputs[249], outputs[-1]
+    assert at_idle_start.alarm[0] and at_idle_start.rotor[0] == 2
+    assert last.alarm[0] and last.rotor[0] == 2 and not last.partner_ambiguous[0]
+    # The estimate and its standard deviation are those of the evidence, not of the idle samples.
+    assert last.effectiveness[0, 2] == at_idle_start.effectiveness[0, 2] < 0.05
+    assert last.effectiveness_std[0, 2] == at_idle_start.effectiveness_std[0, 2] < 0.05
+    assert last.loss_std[0, 2] > 50 * last.effectiveness_std[0, 2]
+    diagnoser_view.last = last
+    estimate, std = diagnoser_view.effectiveness()
+    assert estimate[2] < 0.05 and std[2] < 0.05 and np.all(np.delete(estimate, 2) == 1.0)
+    (report,) = [r for r in rotor_reports(last, 8, coaxial_partners(airframe), 0.5) if r.name == "rotor_3"]
+    assert report.level == "ERROR" and "stopped" in report.message
+
+
 def _learnt_detector(airframe, rng, noise_scale=0.01, steps=200, settings=None):
     """A detector that has learnt residual noise of ``noise_scale`` stopped rotors, and its inputs."""
     omega = np.full(airframe.n_rotors, Model(airframe).hover_speed_rad_s())

@@ -14,6 +14,16 @@ residual about a slowly adapting baseline (which absorbs a steady model error su
 thrust constant), both updated only while no rotor is suspected, so that a fault does not teach the
 detector to accept itself. A rotor is declared faulty when δ_i > max(``min_loss``, ``k_sigma`` std(δ_i))
 has held for ``persistence_s``; the alarm clears after ``clear_s`` below half that threshold.
+
+In alarm, the faulty rotor's remaining effectiveness is an average of its samples (time constant
+``effectiveness_time_constant_s``), reported with the standard deviation of one sample (the RMS over
+the same average: the averaged estimate is surer, so this is an upper bound). Only samples that are
+evidence about the fault move the average, its standard deviation, the coaxial ambiguity and
+the clearing clock: those in which a loss as large as the estimated one would stand above the
+threshold. A rotor that a fault-tolerant controller has left out idles near its minimum speed; the
+residual then says almost nothing about it (its loss's standard deviation grows a hundredfold), and
+taking that silence as "healthy" would clear the alarm, report the stopped rotor OK and bring it back
+into the allocation. So a diagnosis stands, as sure as its last evidence, until evidence changes it.
 σ_c has a floor (``noise_floor_fraction`` of a stopped rotor's residual in that channel) so that a
 noise-free simulation does not get an infinitely sensitive detector.
 
@@ -105,6 +115,7 @@ class DetectorOutput:
     rotor: FloatArray  # (B,) int: the faulty (or, without alarm, the most suspect) rotor
     partner_ambiguous: BoolArray  # (B,) its coaxial partner fits almost as well
     effectiveness: FloatArray  # (B, N): estimated remaining effectiveness, 1 for rotors not in alarm
+    effectiveness_std: FloatArray  # (B, N): loss_std; the faulty rotor's averaged over its evidence
     loss: FloatArray  # (B, N): this sample's loss estimates δ_i
     loss_std: FloatArray  # (B, N): their standard deviations
     threshold: FloatArray  # (B, N): the adaptive loss threshold
@@ -122,6 +133,8 @@ class _State:
     rotor: FloatArray
     onset_t: FloatArray
     effectiveness: FloatArray
+    evidence_variance: FloatArray  # (B,) loss_std² of the faulty rotor, averaged over its evidence
+    ambiguous: BoolArray  # (B,) the alarm's coaxial partner fits almost as well (last evidence)
     relearning: BoolArray  # (B,) learning the noise again after a break (module docstring)
     relearn_started_t: float | None = None
     started_t: float | None = None
@@ -168,6 +181,8 @@ class FaultDetector:
             rotor=np.zeros(b, dtype=int),
             onset_t=np.full(b, np.nan),
             effectiveness=np.ones((b, n)),
+            evidence_variance=np.full(b, np.nan),
+            ambiguous=np.zeros(b, dtype=bool),
             relearning=np.zeros(b, dtype=bool),
         )
 
@@ -265,19 +280,35 @@ class FaultDetector:
         state.onset_t = np.where(newly, t, state.onset_t)
         state.alarm = state.alarm | newly
 
-        # Effectiveness of the rotor in alarm, averaged; others are reported healthy.
+        # The faulty rotor's effectiveness, averaged over the samples that are evidence (module docstring);
+        # the others are reported healthy.
         faulty = state.rotor
         faulty_loss = np.clip(loss[rows, faulty], 0.0, 1.0)
-        blend, noise_blend, base_blend = self._blends(dt_s)
         current = state.effectiveness[rows, faulty]
+        evidence = s.k_sigma * loss_std[rows, faulty] <= np.maximum(1.0 - current, s.min_loss)
+        blend, noise_blend, base_blend = self._blends(dt_s)
         state.effectiveness[rows, faulty] = np.where(
             newly,
             1.0 - faulty_loss,
-            np.where(state.alarm, current + blend * ((1.0 - faulty_loss) - current), 1.0),
+            np.where(
+                state.alarm,
+                np.where(evidence, current + blend * ((1.0 - faulty_loss) - current), current),
+                1.0,
+            ),
+        )
+        variance = loss_std[rows, faulty] ** 2
+        state.evidence_variance = np.where(
+            newly,
+            variance,
+            np.where(
+                evidence,
+                state.evidence_variance + blend * (variance - state.evidence_variance),
+                state.evidence_variance,
+            ),
         )
 
-        # Clearing: the faulty rotor's loss below half its threshold for clear_s.
-        quiet = state.alarm & (loss[rows, faulty] < 0.5 * threshold[rows, faulty])
+        # Clearing: the faulty rotor's loss below half its threshold for clear_s, on consecutive evidence.
+        quiet = state.alarm & evidence & (loss[rows, faulty] < 0.5 * threshold[rows, faulty])
         state.quiet_since = np.where(
             quiet, np.where(np.isnan(state.quiet_since), t, state.quiet_since), np.nan
         )
@@ -302,12 +333,18 @@ class FaultDetector:
             has_partner, explained[rows, np.maximum(partner, 0)], -np.inf
         )
         ambiguous = has_partner & (misfit_gap < s.ambiguity_chi2)
+        state.ambiguous = np.where(~state.alarm | newly | evidence, ambiguous, state.ambiguous)
+        effectiveness_std = loss_std.copy()
+        effectiveness_std[rows, faulty] = np.where(
+            state.alarm, np.sqrt(state.evidence_variance), loss_std[rows, faulty]
+        )
         return DetectorOutput(
             t=t,
             alarm=state.alarm.copy(),
             rotor=faulty.copy(),
-            partner_ambiguous=ambiguous,
+            partner_ambiguous=state.ambiguous.copy(),
             effectiveness=state.effectiveness.copy(),
+            effectiveness_std=effectiveness_std,
             loss=loss,
             loss_std=loss_std,
             threshold=threshold,
@@ -395,6 +432,7 @@ class FaultDetector:
             rotor=np.zeros(b, dtype=int),
             partner_ambiguous=np.zeros(b, dtype=bool),
             effectiveness=np.ones((b, n)),
+            effectiveness_std=np.full((b, n), np.nan),
             loss=np.zeros((b, n)),
             loss_std=np.full((b, n), np.nan),
             threshold=np.full((b, n), np.nan),
