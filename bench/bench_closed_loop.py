@@ -5,8 +5,8 @@
 
 1. Lockstep: ``multirotor node simulator`` (1 kHz physics, real_time_factor 0, lockstep, clock) and
    ``multirotor node controller`` (250 Hz, use_sim_time) hovering the vehicle, once per executor the
-   nodes can spin with (``MULTIROTOR_ROS_EXECUTOR``, nodes/entry.py; the controller, on simulated
-   time, spins on the SingleThreadedExecutor with either). Reported: simulated seconds per
+   nodes can spin with (``MULTIROTOR_ROS_EXECUTOR``, nodes/entry.py; the controller keeps its simulated
+   time itself, so it spins on the executor named too). Reported: simulated seconds per
    wall second and control periods per second; the latency from a motor command to the next state that
    reflects it (the wall time between the probe receiving ``motor_speed_cmd`` stamped t and receiving
    ``odom`` stamped t + 4 ms); the CPU time each node process spends per control period (all its threads,

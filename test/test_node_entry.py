@@ -157,9 +157,11 @@ print(json.dumps(result))
 """
 
 # ``case`` from argv: a node whose timer shuts the context down, raises, or signals its own process
-# (whose teardown then hangs), or that has a guard condition.
+# (whose teardown then hangs), that has a guard condition, or that is on simulated time and says it keeps
+# that time itself, its timer on the steady clock (as the controller, which ticks from /clock).
 EDGE_NODE = """
 import os, signal, sys, time
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from multirotor_ros.nodes.entry import make_executor, run_node
 
@@ -173,6 +175,9 @@ class Edge(Node):
             def boom():
                 raise RuntimeError("boom in a timer")
             self.create_timer(0.05, boom)
+        elif sys.argv[1] == "simulated":
+            self.KEEPS_ITS_OWN_SIMULATED_TIME = True
+            self.create_timer(0.05, self.context.shutdown, clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             if sys.argv[1] == "guard":
                 self.create_guard_condition(lambda: None)
@@ -186,7 +191,8 @@ class Edge(Node):
 
 
 start = time.monotonic()
-status = run_node(Edge, ["edge"])
+simulated = ["--ros-args", "-p", "use_sim_time:=true"] if sys.argv[1] == "simulated" else []
+status = run_node(Edge, ["edge", *simulated])
 print(f"status {status} after {time.monotonic() - start:.2f} s", flush=True)
 """
 
@@ -206,7 +212,7 @@ def test_a_node_on_simulated_time_ticks_once_per_clock_period_takes_parameters_a
     done = run_script(SIM_TIME_NODE, signal_name, executor="events")
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout.splitlines()[-1])
-    # Asked for the events executor, a node on simulated time gets the single-threaded one (make_executor).
+    # Asked for the events executor, a node on simulated time gets the single-threaded one.
     assert result["executor"] == "SingleThreadedExecutor"
     # One tick per period of simulated time, at that time: none skipped, none repeated; a clock that
     # jumps three periods at once gives one tick, half a period none until the period is complete.
@@ -232,10 +238,12 @@ def test_an_exception_in_a_callback_ends_the_node_with_its_traceback(executor: s
 
 
 @pytest.mark.ros
-def test_the_events_executor_is_the_default_and_a_node_with_guard_conditions_gets_the_other() -> None:
+def test_events_is_the_default_and_a_node_with_guards_gets_the_other_unless_it_keeps_its_own_time() -> None:
     assert "executor EventsExecutor" in run_script(EDGE_NODE, "shutdown").stdout
     done = run_script(EDGE_NODE, "guard", executor="events")
     assert done.returncode == 0 and "executor SingleThreadedExecutor" in done.stdout, done.stderr[-3000:]
+    done = run_script(EDGE_NODE, "simulated", executor="events")
+    assert done.returncode == 0 and "executor EventsExecutor" in done.stdout, done.stderr[-3000:]
     done = run_script(EDGE_NODE, "shutdown", executor="fastest")
     assert done.returncode == 0 and "executor EventsExecutor" in done.stdout
     assert f"{EXECUTOR_ENV}='fastest' is none of events, single" in done.stderr

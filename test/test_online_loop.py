@@ -30,7 +30,7 @@ from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.nodes.messages import odometry_message, stamp_from_ns, stamp_to_ns
 from multirotor_ros.nodes.simulator import STALL_WARNING_S
 from multirotor_ros.simulation.flight import ControlTrace, SetpointSchedule, simulate_flight
-from multirotor_ros.simulation.pacing import NS_PER_S, ControlTiming, Lockstep, StateForTick
+from multirotor_ros.simulation.pacing import NS_PER_S, ClockTicks, ControlTiming, Lockstep, StateForTick
 
 MS = 1_000_000
 # (t [s], x, y, z [m], yaw [rad]): the steps of issue 10.
@@ -67,6 +67,18 @@ def test_a_period_is_late_when_its_command_comes_after_it_ended() -> None:
     timing.command(52 * MS)
     timing.physics_at(56 * MS)
     assert (timing.on_time, timing.late) == (2, 2)
+
+
+def test_clock_ticks_fall_on_the_multiples_of_the_period_whatever_the_clock_does() -> None:
+    ticks = ClockTicks(4)
+    # Lockstep: the clock reads every period from 0; the first tick is one period after 0.
+    assert [t for t in range(0, 20, 4) if ticks.clock(t)] == [4, 8, 12, 16]
+    assert not ticks.clock(16)  # the same time again (a resent clock): no second tick
+    assert ticks.clock(29)  # three periods at once: one tick ...
+    assert not ticks.clock(31) and ticks.clock(32)  # ... and the next on the next multiple
+    assert not ticks.clock(2) and ticks.clock(4)  # a restarted clock ticks from its start again
+    with pytest.raises(ValueError, match="period_ns must be > 0"):
+        ClockTicks(0)
 
 
 def test_a_tick_waits_for_the_state_that_is_due_and_is_served_by_it() -> None:

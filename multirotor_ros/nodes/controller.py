@@ -4,12 +4,21 @@ Wiring::
 
     odom (Odometry) --------> validate -> latest state --+
     setpoint (PoseStamped) -> validate -> latest target -+-> SaturationController (control/), every
-                                                         |   1/rate_hz of the node's clock -> motor_speed_cmd
+    /clock (use_sim_time) --> ClockTicks ----------------+   1/rate_hz of the node's clock -> motor_speed_cmd
     rotor_effectiveness ----> validate -> latest -> EffectivenessFilter -+  (effectiveness of each rotor)
       (Float64MultiArray)                           (control/fault_tolerance.py)
 
-The timer runs on the node's clock, so with ``use_sim_time`` the law runs at ``rate_hz`` of simulated
-time and each command is stamped with the simulated time it was computed at. The clock and the
+The law runs every 1/``rate_hz`` of the node's clock and each command is stamped with the time it was
+computed at: on wall time from a timer on the steady clock, on simulated time (``use_sim_time``) from
+the ``/clock`` messages themselves (simulation/pacing.py ``ClockTicks``), at ``rate_hz`` of simulated
+time; on simulated time the node's time is the newest ``/clock`` this subscription received, not rclpy's
+time source. Neither a timer on the simulated clock nor the time source: the node may then spin on
+rclpy's EventsExecutor (the single-threaded executor's wait sets halved the lockstep loop's speed,
+bench/bench_closed_loop.py), whose timers manager, like rclcpp's, is not made for a ``/clock``-driven
+clock (ros2/rclcpp#2457; nodes/entry.py ``make_executor``), and under which the time source's ``/clock``
+subscription, made when the node is constructed, often never delivers when the clock was already
+running before the node spun (7 controllers of 12 joining a running simulator read time 0 for good;
+this one is made last, just before the spin). The clock and the
 odometry of one instant come on two topics in either order: on simulated time a tick whose odometry is
 due but not yet here waits for it (simulation/pacing.py ``StateForTick``), so that in lockstep every
 command is computed from the state of its own instant and a flight is the same on any machine.
@@ -78,6 +87,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -87,6 +97,7 @@ from multirotor_ros.control.law import SaturationController
 from multirotor_ros.control.setpoint_queue import SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
+from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
@@ -99,7 +110,7 @@ from multirotor_ros.nodes.messages import (
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.plausibility import NS_PER_S, StampGate, StateLimits, format_vector, jump_refusal
 from multirotor_ros.refusals import Refusal, RefusalCounter
-from multirotor_ros.simulation.pacing import StateForTick
+from multirotor_ros.simulation.pacing import ClockTicks, StateForTick
 
 # (p_WB_W, v_WB_W, q_WB, w_WB_B): position and velocity in world ENU, attitude, body rates in FLU.
 State = tuple[FloatArray, FloatArray, FloatArray, FloatArray]
@@ -193,6 +204,9 @@ class OdometryCheck:
 class ControllerNode(Node):
     """Position and yaw control of one vehicle; see the module docstring."""
 
+    # Reads /clock itself (module docstring): it may spin on the EventsExecutor (entry.make_executor).
+    KEEPS_ITS_OWN_SIMULATED_TIME = True
+
     def __init__(self, **kwargs: Any):
         super().__init__("controller", **kwargs)
         name = self.declare_parameter(
@@ -218,6 +232,8 @@ class ControllerNode(Node):
         self._target: tuple[FloatArray, float] | None = None
         self._scheduled = SetpointQueue()
         self._state_for_tick = StateForTick()
+        self._clock_ticks = ClockTicks(round(1e9 / self.law.gains.rate_hz))
+        self._simulated_now_ns: int | None = None  # newest /clock heard (use_sim_time)
         self._clock_is_simulated = bool(self.get_parameter("use_sim_time").value)
         self._odom_frame = ""
         self._stale = False
@@ -241,13 +257,21 @@ class ControllerNode(Node):
         self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self.create_timer(1.0 / self.law.gains.rate_hz, self._on_timer)
+        self._wall_timer = self.create_timer(
+            1.0 / self.law.gains.rate_hz, self._on_timer, clock=steady_clock()
+        )
+        self.create_subscription(Clock, GRAPH_CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
+        if self._clock_is_simulated:
+            self._wall_timer.cancel()
         self.get_logger().info(
             f"{self.airframe.name}: seed 1 saturation law at {self.law.gains.rate_hz:g} Hz"
         )
 
     def _on_odom(self, message: Odometry) -> None:
-        now_ns = self.get_clock().now().nanoseconds
+        if self._clock_is_simulated and self._simulated_now_ns is None:
+            # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
+            return
+        now_ns = self._now_ns()
         state = self._odometry_check.accept(message, now_ns)
         if isinstance(state, Refusal):
             self._odom_refusals.refuse(state.reason, state.detail)
@@ -282,7 +306,7 @@ class ControllerNode(Node):
         if isinstance(target, Refusal):
             self._setpoint_refusals.refuse(target.reason, target.detail)
             return
-        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self.get_clock().now().nanoseconds
+        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self._now_ns()
         if stamp_ns <= now_ns:
             self._target = target
             return
@@ -336,8 +360,21 @@ class ControllerNode(Node):
             + f"{diagnosed}; moving with a time constant of {self._effectiveness_filter.time_constant_s:g} s)"
         )
 
+    def _now_ns(self) -> int:
+        """This node's time [ns]: the newest simulated time heard (0 before any), or the wall clock."""
+        if self._clock_is_simulated:
+            return self._simulated_now_ns or 0
+        return self.get_clock().now().nanoseconds
+
+    def _on_clock(self, message: Clock) -> None:
+        self._simulated_now_ns = stamp_to_ns(message.clock)
+        if self._clock_is_simulated and self._clock_ticks.clock(self._simulated_now_ns):
+            self._tick(self._simulated_now_ns)
+
     def _on_timer(self) -> None:
-        now_ns = self.get_clock().now().nanoseconds
+        self._tick(self._now_ns())
+
+    def _tick(self, now_ns: int) -> None:
         if self._clock_is_simulated and not self._state_for_tick.tick(now_ns):
             return  # the odometry of this tick is on its way: computed when it arrives
         self._control(now_ns)
@@ -390,6 +427,12 @@ class ControllerNode(Node):
             if parameter.name == "use_sim_time":
                 self._clock_is_simulated = bool(parameter.value)
                 self._state_for_tick = StateForTick()
+                self._clock_ticks = ClockTicks(self._clock_ticks.period_ns)
+                self._simulated_now_ns = None
+                if self._clock_is_simulated:
+                    self._wall_timer.cancel()
+                else:
+                    self._wall_timer.reset()
             if parameter.name == "odom_timeout_s":
                 self._odom_timeout_ns = round(float(parameter.value) * 1e9)
                 self._odometry_check.forget_after_ns = self._odom_timeout_ns

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+from rclpy.clock import ClockType
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
@@ -129,19 +130,21 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     ``events`` is ``rclpy.experimental.EventsExecutor``, which dispatches in C++: the single-threaded
     executor's Python wait-set machinery costs the lockstep simulator about 0.5 ms of CPU per control
     period (bench/bench_closed_loop.py); ``single`` is rclpy's ``SingleThreadedExecutor``. The
-    single-threaded one is used instead of the events one when
-    ``node`` runs on simulated time (``use_sim_time`` true when it is built), when it has guard
-    conditions (which the EventsExecutor refuses: a guard condition created later ends the spin with a
-    RuntimeError), without an EventsExecutor (rclpy before 7.1.4), or where it cannot be made (its
-    constructor enables ``faulthandler`` on stderr, which fails when stderr is not a file). Another
+    single-threaded one is used instead of the events one when ``node`` runs on simulated time
+    (``use_sim_time`` true when it is built) without keeping that time itself (below), when it has
+    guard conditions (which the EventsExecutor refuses: a guard condition created later ends the spin
+    with a RuntimeError), without an EventsExecutor (rclpy before 7.1.4), or where it cannot be made
+    (its constructor enables ``faulthandler`` on stderr, which fails when stderr is not a file). Another
     value of the variable: one line on stderr, and the default.
 
-    Simulated time: rclcpp's events executor, whose design rclpy's follows, does not support a clock
-    driven by ``/clock`` in its timers manager (ros2/rclcpp#2457). rclpy's passes this package's sim-time
-    tests (test_node_entry.py), but it is experimental and a lockstep controller that stops ticking
-    stops the whole loop, so a node on simulated time keeps the single-threaded executor. (A lockstep
-    hang first blamed on it was a lost command, also seen on the single-threaded executor; see
-    nodes/controller.py.)
+    Simulated time, two failures of the EventsExecutor: rclcpp's events executor does not support a
+    clock driven by ``/clock`` in its timers manager (ros2/rclcpp#2457: it sleeps in wall time until a
+    timer's next call), and under rclpy's the time source's ``/clock`` subscription, made when the node
+    is constructed, often never delivers when the clock was already running before the node spun: 7
+    controllers of 12 that joined a running lockstep simulator read time 0 for good and refused every
+    state as "in the future". A node class that sets ``KEEPS_ITS_OWN_SIMULATED_TIME`` (the controller:
+    it reads ``/clock`` on a subscription of its own, made last, and ticks from it) and has no timer on
+    ROS time spins on the EventsExecutor anyway.
 
     Under the EventsExecutor an exception that escapes a callback is logged by rclpy at FATAL, with
     its traceback, before it reaches ``run_node``; it ignores callback groups (one thread anyway).
@@ -150,7 +153,7 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     if choice not in EXECUTORS:
         print(f"{EXECUTOR_ENV}={choice!r} is none of {', '.join(EXECUTORS)}: using events", file=sys.stderr)
         choice = EXECUTORS[0]
-    if choice == "events" and not (node is not None and (list(node.guards) or _on_simulated_time(node))):
+    if choice == "events" and not (node is not None and (list(node.guards) or _needs_the_time_source(node))):
         try:
             from rclpy.experimental import EventsExecutor
 
@@ -160,8 +163,13 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     return SingleThreadedExecutor(context=context)
 
 
-def _on_simulated_time(node: Node) -> bool:
-    return bool(node.get_parameter("use_sim_time").value)
+def _needs_the_time_source(node: Node) -> bool:
+    """Whether ``node`` on simulated time relies on rclpy's time source or timers (make_executor)."""
+    if not node.get_parameter("use_sim_time").value:
+        return False
+    return not getattr(node, "KEEPS_ITS_OWN_SIMULATED_TIME", False) or any(
+        timer.clock.clock_type == ClockType.ROS_TIME for timer in node.timers
+    )
 
 
 def spin(executor: Executor, context: Context, stop: threading.Event | None = None) -> None:

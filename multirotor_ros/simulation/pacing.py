@@ -11,6 +11,8 @@
 - :class:`ControlTiming`: in real time, whether each control period got its command in time (the command
   for the period starting at t, stamped t, is in force before the physics passes t + one period), and the
   achieved real-time factor: what the simulator reports on its ``pacing`` topic.
+- :class:`ClockTicks`: the ticks of a controller on simulated time, read from the clock's messages: every
+  ``period`` of simulated time, at the multiples of the period, as a timer on the simulated clock would.
 - :class:`StateForTick`: the controller's side of lockstep. Its timer fires on the simulated clock, and the
   clock and the odometry for the same instant arrive on two topics in either order; waiting for the
   odometry of the tick (when the stream says one is due) makes the command the same in every run.
@@ -142,6 +144,37 @@ class AchievedRate:
 def _factor(start: tuple[float, int], end: tuple[float, int]) -> float:
     wall = end[0] - start[0]
     return (end[1] - start[1]) / NS_PER_S / wall if wall > 0 else 0.0
+
+
+class ClockTicks:
+    """Ticks at the multiples of ``period_ns`` of a simulated clock, told each time it reads.
+
+    What a timer on the simulated clock does, without one (nodes/controller.py says why): :meth:`clock`
+    with each time the clock gives; True when that time reached the next tick. The first tick is one
+    period after 0 (where :class:`Lockstep` lets the physics run to before any command); a clock that
+    jumps past several ticks gives one, and the next is the first multiple after it; a clock that goes
+    back (a restarted simulator) starts the ticks again from there.
+    """
+
+    def __init__(self, period_ns: int):
+        if period_ns <= 0:
+            raise ValueError(f"period_ns must be > 0, got {period_ns}")
+        self.period_ns = period_ns
+        self._next_ns = period_ns
+        self._newest_ns: int | None = None
+
+    def clock(self, now_ns: int) -> bool:
+        """The clock reads ``now_ns``: True when a tick is due (then the next one is scheduled)."""
+        if self._newest_ns is not None and now_ns < self._newest_ns:
+            self._next_ns = self._after(now_ns)
+        self._newest_ns = now_ns
+        if now_ns < self._next_ns:
+            return False
+        self._next_ns = self._after(now_ns)
+        return True
+
+    def _after(self, now_ns: int) -> int:
+        return (now_ns // self.period_ns + 1) * self.period_ns
 
 
 class StateForTick:
