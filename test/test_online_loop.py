@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
+from rclpy.qos import qos_profile_sensor_data
 from ros_harness import CpuHog, NodeProcess, Recorder, RosProbe
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -297,6 +298,38 @@ def test_a_lockstep_simulator_waits_for_a_stalled_controller_and_says_which_inpu
         controller.process.send_signal(signal.SIGCONT)
         controller.stop()
         simulator.stop()
+
+
+@pytest.mark.ros
+def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fly_it(
+    probe: RosProbe, tmp_path
+) -> None:
+    """Controllers started one after another beside a lockstep simulator that already runs its clock.
+
+    Under the EventsExecutor rclpy's time source often read 0 for good in a node that joined a clock
+    already running (7 controllers of 12): every state was refused as "in the future" and the loop stood.
+    The controller keeps its time from its own /clock subscription (nodes/controller.py).
+    """
+    namespace = "/join"
+    clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
+    commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState, qos=1000)
+    with NodeProcess(
+        "simulator",
+        tmp_path / "simulator.log",
+        namespace=namespace,
+        parameters={"real_time_factor": 0.0, "publish_clock": True},
+    ):
+        clock.wait_for(count=3, timeout=STARTUP_TIMEOUT_S)  # waiting for a controller, it resends its clock
+        for attempt in range(4):
+            with NodeProcess(
+                "controller",
+                tmp_path / f"controller{attempt}.log",
+                namespace=namespace,
+                parameters={"use_sim_time": True},
+            ) as controller:
+                commands.clear()
+                commands.wait_for(count=250, timeout=STARTUP_TIMEOUT_S)  # one simulated second
+                assert "refused" not in controller.log_text(), controller.log_text()
 
 
 @pytest.mark.ros

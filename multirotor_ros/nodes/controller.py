@@ -94,7 +94,7 @@ from std_msgs.msg import Float64MultiArray
 from multirotor_ros.control.fault_tolerance import EffectivenessFilter
 from multirotor_ros.control.gains import GAIN_UNITS, airframe_gains
 from multirotor_ros.control.law import SaturationController
-from multirotor_ros.control.setpoint_queue import SetpointQueue
+from multirotor_ros.control.setpoint_queue import SETPOINT_QUEUE_LENGTH, SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
@@ -253,7 +253,8 @@ class ControllerNode(Node):
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
         self.create_subscription(Odometry, "odom", self._on_odom, 1)
-        self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, 10)
+        # As deep as the schedule: a mission sent at once must not lose its first setpoints to its last.
+        self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, SETPOINT_QUEUE_LENGTH)
         self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
