@@ -287,24 +287,15 @@ class FaultDetector:
         current = state.effectiveness[rows, faulty]
         evidence = s.k_sigma * loss_std[rows, faulty] <= np.maximum(1.0 - current, s.min_loss)
         blend, noise_blend, base_blend = self._blends(dt_s)
+        gain = np.where(evidence, blend, 0.0)  # a sample that is no evidence leaves both averages alone
         state.effectiveness[rows, faulty] = np.where(
             newly,
             1.0 - faulty_loss,
-            np.where(
-                state.alarm,
-                np.where(evidence, current + blend * ((1.0 - faulty_loss) - current), current),
-                1.0,
-            ),
+            np.where(state.alarm, current + gain * ((1.0 - faulty_loss) - current), 1.0),
         )
-        variance = loss_std[rows, faulty] ** 2
+        variance = loss_std[rows, faulty] ** 2  # finite: _fit floors the information at 1e-300
         state.evidence_variance = np.where(
-            newly,
-            variance,
-            np.where(
-                evidence,
-                state.evidence_variance + blend * (variance - state.evidence_variance),
-                state.evidence_variance,
-            ),
+            newly, variance, state.evidence_variance + gain * (variance - state.evidence_variance)
         )
 
         # Clearing: the faulty rotor's loss below half its threshold for clear_s, on consecutive evidence.

@@ -114,9 +114,10 @@ class RotorDiagnoser:
         What the ``rotor_effectiveness`` topic carries and a fault-tolerant controller reads. Before the
         detector has learnt the residual noise (the observer converging), nothing is known: 1 with std
         ``UNKNOWN_EFFECTIVENESS_STD``. Then a healthy rotor is 1 with the standard deviation of one
-        sample's loss estimate, and the rotor in alarm has the detector's averaged estimate with that of
-        its last sample that was evidence (the averaged one is surer: an upper bound; detection.py: a
-        rotor left out to idle is no evidence), each at most ``UNKNOWN_EFFECTIVENESS_STD``. When the
+        sample's loss estimate, and the rotor in alarm has the detector's averaged estimate with the RMS
+        of that standard deviation over the samples that were evidence (the averaged estimate is surer:
+        an upper bound; detection.py: a rotor left out to idle is no evidence), each at most
+        ``UNKNOWN_EFFECTIVENESS_STD``. When the
         faulty rotor's coaxial partner fits almost as well, either may be the healthy one: both get a
         standard deviation of at least the estimated loss.
         """
