@@ -1,7 +1,7 @@
 """Closed loop over ROS 2 across two processes, the ceiling rclpy itself sets, and the loop in real time.
 
     .venv/bin/python bench/bench_closed_loop.py [--seconds 10] [--rounds 1] [--realtime-seconds 30]
-        [--executors events,single] [--airframe x8_octorotor] [--profile DIR] [--skip-ceiling]
+        [--executors events,single] [--airframe x8_octorotor] [--profile DIR] [--skip-ceiling] [--identifier]
 
 1. Lockstep: ``multirotor node simulator`` (1 kHz physics, real_time_factor 0, lockstep, clock) and
    ``multirotor node controller`` (250 Hz, use_sim_time) hovering the vehicle, once per executor the
@@ -10,7 +10,11 @@
    wall second and control periods per second; the latency from a motor command to the next state that
    reflects it (the wall time between the probe receiving ``motor_speed_cmd`` stamped t and receiving
    ``odom`` stamped t + 4 ms); the CPU time each node process spends per control period (all its threads,
-   from /proc: what the loop costs, whatever else the machine runs).
+   from /proc: what the loop costs, whatever else the machine runs). With ``--identifier`` a third
+   process, ``multirotor node identifier`` (use_sim_time), watches the loop as it would a flight: a
+   lockstep simulator does not wait for it, so what it keeps up with is reported, the state samples it
+   processed per simulated second (``residuals``: one per sample, ``sample_rate_hz`` 100 asked) and the
+   gaps in its data that restarted its observer (its log), with its CPU time per control period.
 2. Ceiling: two bare rclpy processes exchanging the same messages (Odometry one way, an 8-rotor
    JointState back) in ping-pong, each answering in its subscription callback, with no physics and no
    control: round trips per second, i.e. the most 4 ms control periods rclpy could carry per second; once
@@ -162,9 +166,22 @@ class Probe:
 
 
 def node_processes(
-    airframe: str, logs: Path, tag: str, simulator: list[str], controller: list[str], **env: str
+    airframe: str,
+    logs: Path,
+    tag: str,
+    simulator: list[str],
+    controller: list[str],
+    identifier: bool = False,
+    **env: str,
 ) -> list[subprocess.Popen]:
     node = [sys.executable, "-m", "multirotor_ros.cli", "node"]
+    watching = [
+        start(
+            [*node, "identifier", "--ros-args", "-p", f"airframe:={airframe}", "-p", "use_sim_time:=true"],
+            logs / f"identifier-{tag}.log",
+            **env,
+        )
+    ]
     return [
         start(
             [*node, "simulator", "--ros-args", "-p", f"airframe:={airframe}", "-p", "publish_clock:=true"]
@@ -178,6 +195,7 @@ def node_processes(
             logs / f"controller-{tag}.log",
             **env,
         ),
+        *(watching if identifier else []),
     ]
 
 
@@ -200,8 +218,15 @@ def fly(probe: Probe, processes: list[subprocess.Popen], commands: dict[int, flo
 
 
 def lockstep(
-    seconds: float, airframe: str, logs: Path, executor: str, tag: str, profile: Path | None
+    seconds: float,
+    airframe: str,
+    logs: Path,
+    executor: str,
+    tag: str,
+    profile: Path | None,
+    identifier: bool = False,
 ) -> dict:
+    from geometry_msgs.msg import Vector3Stamped
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
 
@@ -209,23 +234,33 @@ def lockstep(
     env = {"MULTIROTOR_ROS_EXECUTOR": executor}
     if profile is not None:
         env["MULTIROTOR_ROS_PROFILE"] = str(profile)
-    processes = node_processes(airframe, logs, tag, ["real_time_factor:=0.0"], [], **env)
+    processes = node_processes(airframe, logs, tag, ["real_time_factor:=0.0"], [], identifier, **env)
     probe = Probe("bench_probe")
     try:
         commands, lock = probe.stamps("/motor_speed_cmd", JointState)
         odometry, odometry_lock = probe.stamps("/odom", Odometry)
+        residuals, residuals_lock = probe.stamps("/residuals", Vector3Stamped, qos=1000)
         fly(probe, processes, commands, logs)
-        with lock, odometry_lock:
+        deadline = time.monotonic() + 120.0
+        while identifier and not residuals:  # its start-up (compiled kernels) is not measured
+            if time.monotonic() > deadline:
+                raise SystemExit(f"the identifier published no residuals; logs in {logs}")
+            time.sleep(0.1)
+        gaps_before = gaps_in_log(logs / f"identifier-{tag}.log")
+        with lock, odometry_lock, residuals_lock:
             commands.clear()
             odometry.clear()
+            residuals.clear()
         cpu_start = [cpu_s(p.pid) for p in processes]
         start_wall = time.perf_counter()
         time.sleep(seconds)
-        with lock, odometry_lock:
+        with lock, odometry_lock, residuals_lock:
             wall = time.perf_counter() - start_wall
             cpu = [cpu_s(p.pid) - c for p, c in zip(processes, cpu_start, strict=True)]
             command_items = sorted(commands.items())
             odometry_items = dict(odometry)
+            residual_stamps = list(residuals)
+        gaps = gaps_in_log(logs / f"identifier-{tag}.log") - gaps_before
     finally:
         probe.close()
         stop(processes)
@@ -236,8 +271,19 @@ def lockstep(
         if t + CONTROL_PERIOD_NS in odometry_items
     ]
     latencies = [latency for latency in latencies if latency > 0] or [float("nan")] * 2
+    simulated_s = (max(odometry_items) - min(odometry_items)) * 1e-9
+    watched = (
+        {
+            "identifier_samples_per_sim_s": len(residual_stamps) / simulated_s,
+            "identifier_gaps": gaps,
+            "identifier_cpu_ms": 1e3 * cpu[2] / max(periods, 1),
+        }
+        if identifier
+        else {}
+    )
     return {
-        "sim_s_per_wall_s": (max(odometry_items) - min(odometry_items)) * 1e-9 / wall,
+        **watched,
+        "sim_s_per_wall_s": simulated_s / wall,
         "periods_per_s": periods / wall,
         "latency_median_ms": 1e3 * statistics.median(latencies),
         "latency_p95_ms": 1e3 * statistics.quantiles(latencies, n=20)[-1],
@@ -245,6 +291,11 @@ def lockstep(
         "controller_cpu_ms": 1e3 * cpu[1] / max(periods, 1),
         "periods": periods,
     }
+
+
+def gaps_in_log(path: Path) -> int:
+    """The gaps in its data the identifier stepped over by restarting its observer (its warnings)."""
+    return path.read_text(errors="replace").count("] gap of ") if path.exists() else 0
 
 
 # ------------------------------------------------------------------------------------------------
@@ -483,6 +534,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--airframe", default="x8_octorotor")
     parser.add_argument("--profile", type=Path, help="profile the lockstep nodes into this directory")
     parser.add_argument("--skip-ceiling", action="store_true")
+    parser.add_argument(
+        "--identifier", action="store_true", help="an identifier node watches the lockstep loop"
+    )
     parser.add_argument("--role", choices=("pong", "ping"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     executors = [e for e in args.executors.split(",") if e]
@@ -507,14 +561,22 @@ def main(argv: list[str] | None = None) -> int:
                 if args.profile is not None and round_ == 0 and executor == executors[0]
                 else None
             )
-            loop = lockstep(args.seconds, args.airframe, logs, executor, f"{executor}-{round_}", profile)
+            loop = lockstep(
+                args.seconds, args.airframe, logs, executor, f"{executor}-{round_}", profile, args.identifier
+            )
             loops[executor].append(loop)
+            watched = (
+                f"; identifier {loop['identifier_samples_per_sim_s']:.1f} samples per simulated s, "
+                f"{loop['identifier_gaps']} gaps, CPU {loop['identifier_cpu_ms']:.2f} ms per period"
+                if args.identifier
+                else ""
+            )
             print(
                 f"lockstep, nodes on {executor:6s}: {loop['sim_s_per_wall_s']:.2f} sim s/wall s = "
                 f"{loop['periods_per_s']:.0f} control periods/s; command -> state median "
                 f"{loop['latency_median_ms']:.2f} ms, p95 {loop['latency_p95_ms']:.2f} ms; CPU per period: "
-                f"simulator {loop['simulator_cpu_ms']:.2f} ms, controller {loop['controller_cpu_ms']:.2f} ms "
-                f"({load()})",
+                f"simulator {loop['simulator_cpu_ms']:.2f} ms, controller {loop['controller_cpu_ms']:.2f} ms"
+                f"{watched} ({load()})",
                 flush=True,
             )
             if profile is not None:

@@ -28,7 +28,8 @@ from test_nodes_sim_control import Vehicle, stamp_s
 from multirotor_ros.diagnosis.campaign import FaultCase, Load, fly_case
 from multirotor_ros.diagnosis.contact import HELD_CONFIRM_S, SupportWatch
 from multirotor_ros.diagnosis.inputs import InputWatch
-from multirotor_ros.diagnosis.monitor import FlightMonitor, StepResult
+from multirotor_ros.diagnosis.monitor import FlightMonitor, StepResult, lower_quartile
+from multirotor_ros.diagnosis.residuals import _MEDIAN_ABS_TO_SIGMA, InnovationGate
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.rotation import FloatArray
@@ -345,6 +346,26 @@ def test_input_watch_refuses_a_timeout_that_is_not_positive():
         InputWatch(["odom"], timeout_s=0.0)
     with pytest.raises(ValueError, match="timeout_s must be > 0"):
         InputWatch(["odom"], timeout_s=math.nan)
+
+
+# ------------------------------------------------------------------ the per-sample arithmetic
+
+
+@given(
+    values=st.lists(st.floats(-1e9, 1e9, allow_nan=False), min_size=1, max_size=80),
+    sizes=st.lists(st.lists(st.floats(0.0, 1e3), min_size=6, max_size=6), min_size=1, max_size=260),
+)
+def test_the_monitors_fast_quartile_and_the_gates_ring_give_numpys_numbers_to_the_bit(values, sizes):
+    """Both run once per sample (the identifier keeps up with a lockstep simulator with them)."""
+    assert lower_quartile(np.array(values)) == float(np.quantile(values, 0.25))
+    gate, recent = InnovationGate(memory=20), []
+    for size in sizes:
+        verdict = gate.judge(np.array(size))
+        recent = [*recent, np.array(size)][-20:]
+        if len(recent) >= 5:
+            noise = _MEDIAN_ABS_TO_SIGMA * np.median(np.stack(recent), axis=0)
+            surprised = np.any(np.array(size) > np.maximum(gate.sigma * noise, gate.floor))
+            assert (verdict == "usual") == (not surprised)
 
 
 # ------------------------------------------------------------------ support or free flight

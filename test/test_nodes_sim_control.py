@@ -82,7 +82,8 @@ def position(message: Odometry) -> np.ndarray:
 def setpoint_message(x: float, y: float, z: float, yaw: float = 0.0) -> PoseStamped:
     message = PoseStamped()
     message.header.frame_id = "odom"
-    message.pose.position.x, message.pose.position.y, message.pose.position.z = x, y, z
+    # float(): the rclpy wheels take a Python int into a float64 field and serialise its bits (3 -> 1.5e-323).
+    message.pose.position.x, message.pose.position.y, message.pose.position.z = float(x), float(y), float(z)
     message.pose.orientation.z, message.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
     return message
 

@@ -308,11 +308,13 @@ def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fl
 
     Under the EventsExecutor rclpy's time source often read 0 for good in a node that joined a clock
     already running (7 controllers of 12): every state was refused as "in the future" and the loop stood.
-    The controller keeps its time from its own /clock subscription (nodes/controller.py).
+    The controller and the identifier keep their time from a /clock subscription of their own
+    (nodes/clock.py NodeTime); an identifier joining beside the last controller judges the vehicle.
     """
     namespace = "/join"
     clock = probe.subscribe("/clock", Clock, qos_profile_sensor_data)
     commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState, qos=1000)
+    status = probe.subscribe(f"{namespace}/diagnostics", DiagnosticArray, qos=100)
     with NodeProcess(
         "simulator",
         tmp_path / "simulator.log",
@@ -330,6 +332,27 @@ def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fl
                 commands.clear()
                 commands.wait_for(count=250, timeout=STARTUP_TIMEOUT_S)  # one simulated second
                 assert "refused" not in controller.log_text(), controller.log_text()
+        with (
+            NodeProcess(
+                "controller",
+                tmp_path / "controller.log",
+                namespace=namespace,
+                parameters={"use_sim_time": True},
+            ),
+            NodeProcess(
+                "identifier",
+                tmp_path / "identifier.log",
+                namespace=namespace,
+                parameters={"use_sim_time": True},
+            ) as identifier,
+        ):
+            # Its inputs heard and used: the vehicle, never flown here, is found on the ground.
+            status.wait_for(lambda m: any(s.name == "inputs" for s in m.status), timeout=STARTUP_TIMEOUT_S)
+            deadline = time.monotonic() + STARTUP_TIMEOUT_S
+            while "resting at t = " not in identifier.log_text() and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert "resting at t = " in identifier.log_text(), identifier.log_text()
+            assert "stamp in the future" not in identifier.log_text(), identifier.log_text()
 
 
 @pytest.mark.ros

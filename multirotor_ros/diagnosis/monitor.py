@@ -106,6 +106,17 @@ BODY_RATE_NOISE_RAD_S = 0.5
 SPEED_REPORT_MARGIN = 1.02
 
 
+def lower_quartile(values: FloatArray) -> float:
+    """``np.quantile(values, 0.25)`` to the bit (its linear method), without its overhead: once per sample."""
+    position = (values.size - 1) * 0.25
+    below = int(position)
+    above = min(below + 1, values.size - 1)
+    ordered = np.partition(values, (below, above))
+    low, high, weight = float(ordered[below]), float(ordered[above]), position - below
+    # numpy's interpolation, from the nearer end
+    return high - (high - low) * (1 - weight) if weight >= 0.5 else low + (high - low) * weight
+
+
 @dataclass(frozen=True)
 class MonitorSettings:
     """Sample handling of the identifier node."""
@@ -342,7 +353,7 @@ class FlightMonitor:
     def _report_interval_ns(self) -> float:
         """The typical interval between rotor-speed reports: the lower quartile of the recent ones."""
         stamps = np.fromiter((stamp for stamp, _ in self._speeds), dtype=float, count=len(self._speeds))
-        return float(np.quantile(np.diff(stamps), 0.25))
+        return lower_quartile(np.diff(stamps))
 
     def state(
         self,
@@ -556,7 +567,7 @@ class FlightMonitor:
         typical_s = 1.0 / self.settings.sample_rate_hz
         if span_s <= HOLE_PERIODS * typical_s:  # the quartile only when it can matter
             return False
-        return span_s > HOLE_PERIODS * max(typical_s, float(np.quantile(self._spans_s, 0.25)))
+        return span_s > HOLE_PERIODS * max(typical_s, lower_quartile(np.array(self._spans_s)))
 
     def _start_clock(self, stamp_ns: int) -> list[str]:
         """Times are seconds since the record's origin (resumed) or the first sample, or go on (restart())."""

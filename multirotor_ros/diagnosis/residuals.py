@@ -35,7 +35,6 @@ that ends sooner was bad messages: the held samples are dropped as missing data.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -107,18 +106,22 @@ class InnovationGate:
     floor: float = 0.25  # [stopped-rotor units] the gate never closes below this (noise-free data)
     memory: int = 200  # samples whose median innovation is the noise level; none held before memory / 4
     max_held: int = 5  # samples held in a row at most
-    _recent: deque[FloatArray] = field(default_factory=deque, repr=False)
+    # The last ``memory`` sizes, a ring (the median ignores their order): no stacking of a queue per sample.
+    _recent: FloatArray | None = field(default=None, repr=False)
+    _judged: int = 0
     _held: int = 0
 
     def judge(self, innovation: FloatArray) -> GateVerdict:
         """What to do with the sample of this (C,) innovation (module docstring)."""
         size = np.abs(innovation)
-        self._recent.append(size)
-        if len(self._recent) > self.memory:
-            self._recent.popleft()
-        if len(self._recent) < self.memory // 4:
+        if self._recent is None:
+            self._recent = np.empty((self.memory, size.shape[0]))
+        self._recent[self._judged % self.memory] = size
+        self._judged += 1
+        known = min(self._judged, self.memory)
+        if known < self.memory // 4:
             return "usual"
-        noise = _MEDIAN_ABS_TO_SIGMA * np.median(np.stack(self._recent), axis=0)
+        noise = _MEDIAN_ABS_TO_SIGMA * np.median(self._recent[:known], axis=0)
         if not np.any(size > np.maximum(self.sigma * noise, self.floor)):
             self._held = 0
             return "usual"
@@ -146,6 +149,7 @@ class WrenchResidualGenerator:
         self.rotational = SuperTwistingObserver(lambda_gain[3:], alpha_gain[3:], tau)
         self._measured_accel_residual: FloatArray | None = None
         self._previous_model: Model | None = None
+        self._evaluated: tuple[StateBatch, Model, tuple[EffectContext, FloatArray, FloatArray]] | None = None
         self.set_model(model)
 
     def set_model(self, model: Model) -> None:
@@ -188,7 +192,7 @@ class WrenchResidualGenerator:
         """
         if not self.started:
             return None
-        a_model_W, w_dot_model_B = self.model.accelerations(self.model.context(state))
+        _, a_model_W, w_dot_model_B = self._evaluate(state)
         rotational = self.rotational.prediction_error(dt_s, state.w_WB_B, w_dot_model_B)
         if state.a_WB_W is None:
             translational = self.translational.prediction_error(dt_s, state.v_WB_W, a_model_W)
@@ -203,8 +207,7 @@ class WrenchResidualGenerator:
         The state's measured acceleration ``a_WB_W`` (world, gravity excluded) is used when given, the
         velocity otherwise.
         """
-        ctx = self.model.context(state)
-        a_model_W, w_dot_model_B = self.model.accelerations(ctx)
+        ctx, a_model_W, w_dot_model_B = self._evaluate(state)
         model_change = None
         if self._previous_model is not None:
             model_change = self._carry_over(ctx, a_model_W, w_dot_model_B)
@@ -233,6 +236,20 @@ class WrenchResidualGenerator:
             signatures=self.signatures(ctx),
             model_change_wrench=model_change,
         )
+
+    def _evaluate(self, state: StateBatch) -> tuple[EffectContext, FloatArray, FloatArray]:
+        """The model at ``state``: its context and accelerations (world, body).
+
+        The last evaluation is kept: the innovation gate and then the update ask for the same sample,
+        and the model is most of a sample's cost.
+        """
+        kept = self._evaluated
+        if kept is not None and kept[0] is state and kept[1] is self.model:
+            return kept[2]
+        ctx = self.model.context(state)
+        evaluated = (ctx, *self.model.accelerations(ctx))
+        self._evaluated = (state, self.model, evaluated)
+        return evaluated
 
     def _carry_over(
         self, ctx: EffectContext, a_new_W: FloatArray, w_dot_new_B: FloatArray

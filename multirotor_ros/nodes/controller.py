@@ -87,7 +87,6 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -97,7 +96,7 @@ from multirotor_ros.control.law import SaturationController
 from multirotor_ros.control.setpoint_queue import SETPOINT_QUEUE_LENGTH, SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
-from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
+from multirotor_ros.nodes.clock import NodeTime, steady_clock
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
@@ -233,8 +232,6 @@ class ControllerNode(Node):
         self._scheduled = SetpointQueue()
         self._state_for_tick = StateForTick()
         self._clock_ticks = ClockTicks(round(1e9 / self.law.gains.rate_hz))
-        self._simulated_now_ns: int | None = None  # newest /clock heard (use_sim_time)
-        self._clock_is_simulated = bool(self.get_parameter("use_sim_time").value)
         self._odom_frame = ""
         self._stale = False
         self._odom_refusals = RefusalCounter(self.get_logger().warning, "odom")
@@ -261,18 +258,18 @@ class ControllerNode(Node):
         self._wall_timer = self.create_timer(
             1.0 / self.law.gains.rate_hz, self._on_timer, clock=steady_clock()
         )
-        self.create_subscription(Clock, GRAPH_CLOCK_TOPIC, self._on_clock, CLOCK_QOS)
-        if self._clock_is_simulated:
+        self._time = NodeTime(self, self._on_simulated_clock)
+        if self._time.simulated:
             self._wall_timer.cancel()
         self.get_logger().info(
             f"{self.airframe.name}: seed 1 saturation law at {self.law.gains.rate_hz:g} Hz"
         )
 
     def _on_odom(self, message: Odometry) -> None:
-        if self._clock_is_simulated and self._simulated_now_ns is None:
+        if not self._time.running:
             # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
             return
-        now_ns = self._now_ns()
+        now_ns = self._time.now_ns()
         state = self._odometry_check.accept(message, now_ns)
         if isinstance(state, Refusal):
             self._odom_refusals.refuse(state.reason, state.detail)
@@ -281,7 +278,7 @@ class ControllerNode(Node):
         self._odom_frame = message.header.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
-        if self._clock_is_simulated:
+        if self._time.simulated:
             stamp_ns = stamp_to_ns(message.header.stamp)
             resent = stamp_ns == self._state_for_tick.newest_ns
             waiting_tick_ns = self._state_for_tick.state(stamp_ns)
@@ -307,7 +304,7 @@ class ControllerNode(Node):
         if isinstance(target, Refusal):
             self._setpoint_refusals.refuse(target.reason, target.detail)
             return
-        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self._now_ns()
+        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self._time.now_ns()
         if stamp_ns <= now_ns:
             self._target = target
             return
@@ -361,22 +358,15 @@ class ControllerNode(Node):
             + f"{diagnosed}; moving with a time constant of {self._effectiveness_filter.time_constant_s:g} s)"
         )
 
-    def _now_ns(self) -> int:
-        """This node's time [ns]: the newest simulated time heard (0 before any), or the wall clock."""
-        if self._clock_is_simulated:
-            return self._simulated_now_ns or 0
-        return self.get_clock().now().nanoseconds
-
-    def _on_clock(self, message: Clock) -> None:
-        self._simulated_now_ns = stamp_to_ns(message.clock)
-        if self._clock_is_simulated and self._clock_ticks.clock(self._simulated_now_ns):
-            self._tick(self._simulated_now_ns)
+    def _on_simulated_clock(self, now_ns: int) -> None:
+        if self._clock_ticks.clock(now_ns):
+            self._tick(now_ns)
 
     def _on_timer(self) -> None:
-        self._tick(self._now_ns())
+        self._tick(self._time.now_ns())
 
     def _tick(self, now_ns: int) -> None:
-        if self._clock_is_simulated and not self._state_for_tick.tick(now_ns):
+        if self._time.simulated and not self._state_for_tick.tick(now_ns):
             return  # the odometry of this tick is on its way: computed when it arrives
         self._control(now_ns)
 
@@ -426,11 +416,10 @@ class ControllerNode(Node):
                     + ("on: allocating with rotor_effectiveness" if self._fault_tolerant else "off: nominal")
                 )
             if parameter.name == "use_sim_time":
-                self._clock_is_simulated = bool(parameter.value)
+                self._time.set_simulated(bool(parameter.value))
                 self._state_for_tick = StateForTick()
                 self._clock_ticks = ClockTicks(self._clock_ticks.period_ns)
-                self._simulated_now_ns = None
-                if self._clock_is_simulated:
+                if self._time.simulated:
                     self._wall_timer.cancel()
                 else:
                     self._wall_timer.reset()

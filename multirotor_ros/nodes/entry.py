@@ -142,9 +142,9 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     timer's next call), and under rclpy's the time source's ``/clock`` subscription, made when the node
     is constructed, often never delivers when the clock was already running before the node spun: 7
     controllers of 12 that joined a running lockstep simulator read time 0 for good and refused every
-    state as "in the future". A node class that sets ``KEEPS_ITS_OWN_SIMULATED_TIME`` (the controller:
-    it reads ``/clock`` on a subscription of its own, made last, and ticks from it) and has no timer on
-    ROS time spins on the EventsExecutor anyway.
+    state as "in the future". A node class that sets ``KEEPS_ITS_OWN_SIMULATED_TIME`` (the controller
+    and the identifier: they read ``/clock`` on a subscription of their own, nodes/clock.py
+    ``NodeTime``) and has no timer on ROS time spins on the EventsExecutor anyway.
 
     Under the EventsExecutor an exception that escapes a callback is logged by rclpy at FATAL, with
     its traceback, before it reaches ``run_node``; it ignores callback groups (one thread anyway).

@@ -91,7 +91,7 @@ from multirotor_ros.ident.rls import OnlineSettings
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.effects import parse_effect_list
 from multirotor_ros.model.rotation import FloatArray
-from multirotor_ros.nodes.clock import steady_clock
+from multirotor_ros.nodes.clock import NodeTime, steady_clock
 from multirotor_ros.nodes.effectiveness_message import rotor_effectiveness_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
@@ -259,6 +259,10 @@ def identifier_parameters() -> list[NodeParameter]:
 class IdentifierNode(Node):
     """Online identification and diagnosis of one vehicle; see the module docstring."""
 
+    # Reads /clock itself (nodes/clock.py NodeTime): it may spin on the EventsExecutor, which carries a
+    # lockstep simulator's state messages at its pace (entry.make_executor).
+    KEEPS_ITS_OWN_SIMULATED_TIME = True
+
     def __init__(self, **kwargs: Any):
         super().__init__("identifier", **kwargs)
         specs = identifier_parameters()
@@ -336,6 +340,7 @@ class IdentifierNode(Node):
         # Four checks per timeout: a check later than two periods means this node itself stalled.
         self.create_timer(p["input_timeout_s"] / 4, self._guarded(self._check_inputs), clock=wall)
         self.create_timer(1.0, self._guarded(self._flush_record), clock=wall)
+        self._time = NodeTime(self)
         for note in self.monitor.notes:
             logger.info(f"record: {note}")
         logger.info(
@@ -365,6 +370,9 @@ class IdentifierNode(Node):
         return result
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
+        for parameter in parameters:
+            if parameter.name == "use_sim_time":
+                self._time.set_simulated(bool(parameter.value))
         changed = {p.name: p.value for p in parameters if p.name in self._specs}
         self._params.update(changed)
         if any(name.startswith("detection.") for name in changed):
@@ -405,7 +413,7 @@ class IdentifierNode(Node):
         is not silent) and to see the node's clock go back. A resend (a lockstep simulator sends its
         newest odometry again while it waits for a command) is no new data, no error either.
         """
-        now_ns = self.get_clock().now().nanoseconds
+        now_ns = self._time.now_ns()
         back_ns = (self._clock_ns or 0) - now_ns
         if back_ns > self._params["future_stamp_tolerance_s"] * 1e9:
             self._start_new_time_line(back_ns * 1e-9)
@@ -556,7 +564,7 @@ class IdentifierNode(Node):
         self._published_effectiveness = (estimate, std)
 
     def _check_inputs(self) -> None:
-        for silent in self._inputs.check(self.get_clock().now().nanoseconds, time.monotonic_ns()):
+        for silent in self._inputs.check(self._time.now_ns(), time.monotonic_ns()):
             self.get_logger().warning(silent)
 
     def _publish_status(self) -> None:

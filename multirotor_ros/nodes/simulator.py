@@ -104,6 +104,8 @@ CLOCK_CHECK_S = 2.0
 # other simulator 2 s after start while its samples had not come through yet. One listed but silent for
 # this long has stopped (discovery forgets a stopped node late) and does not keep this one from starting.
 CLOCK_CHECK_MAX_S = 15.0
+# What the graph gives as the name of a node that discovery has not fully seen yet (rmw_dds_common).
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
 # STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
 RESEND_PERIOD_S = 0.25
@@ -415,7 +417,8 @@ class SimulatorNode(Node):
 
         Heard, not merely listed in the graph: a simulator that just stopped stays listed for a while
         (discovery forgets it late) but publishes nothing, and a restart must not be refused because of it.
-        A listed publisher not heard yet is listened for until ``CLOCK_CHECK_MAX_S``.
+        A listed publisher not heard yet is listened for until ``CLOCK_CHECK_MAX_S``; so is the name of
+        one heard whose node discovery has not named yet (rmw lists it as ``_NODE_NAME_UNKNOWN_``).
         """
         others = [
             name
@@ -423,13 +426,15 @@ class SimulatorNode(Node):
             if name != self.get_fully_qualified_name()
         ]
         heard = self._clock_heard
-        if not heard and others and time.monotonic() - self._clock_watch_since_s < CLOCK_CHECK_MAX_S:
+        named = [name for name in others if UNKNOWN_NODE_NAME not in name]
+        waiting_for = (heard and not named) or (not heard and others)
+        if waiting_for and time.monotonic() - self._clock_watch_since_s < CLOCK_CHECK_MAX_S:
             return  # checked again in CLOCK_CHECK_S
         self._clock_watch.cancel()
         self.destroy_subscription(self._clock_listener)
         if heard:
             self.get_logger().error(
-                f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(others) or 'unknown'}): a "
+                f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(named) or 'unknown'}): a "
                 "graph has one simulated time, so this simulator does not start. Fly several vehicles in one "
                 "simulator node (parameter vehicles), or give each simulator a ROS_DOMAIN_ID of its own"
             )
