@@ -23,7 +23,7 @@ from multirotor_ros.io.rotor_channels import (
     parse_rotor_channels,
     resolve_rotor_channels,
 )
-from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.rotation import euler_to_quat, quat_to_matrix
 
 REAL_LOGS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real_logs"
@@ -128,6 +128,37 @@ def test_ulog_frames_channels_and_metadata(quad_x, tmp_path: Path) -> None:
     )
     write_flight_log(tmp_path / "ulog.csv", log)
     assert len(read_flight_log(tmp_path / "ulog.csv", n_rotors=4)) == len(log)
+
+
+@needs_real_logs
+def test_ulog_landed_state_is_kept_as_the_land_detector_says(quad_x) -> None:
+    from pyulog import ULog
+
+    log = convert(ULOG, quad_x).log
+    land = ULog(str(ULOG), ["vehicle_land_detected"]).get_dataset("vehicle_land_detected").data
+    landed = log.column("landed")
+    assert set(np.unique(landed)) == {0.0, 1.0} and "land detector" in log.metadata["landed_column"]
+    # Held from each message to the next: as many changes as the detector's messages have.
+    assert np.count_nonzero(np.diff(landed)) == np.count_nonzero(np.diff(land["landed"].astype(float)))
+
+
+@needs_real_logs
+def test_a_truncated_ulog_is_named_truncated_and_converted_up_to_where_it_ends(quad_x, tmp_path) -> None:
+    raw = ULOG.read_bytes()
+    half = tmp_path / "half.ulg"
+    half.write_bytes(raw[: len(raw) // 2])
+    conversion = convert(half, quad_x)
+    assert 0 < len(conversion.log) < len(convert(ULOG, quad_x).log)
+    (truncated,) = [w for w in conversion.warnings if w.startswith("truncated")]
+    assert "inside a message" in truncated and "converted up to t =" in truncated
+    early = tmp_path / "early.ulg"  # cut inside the definitions: no data at all
+    early.write_bytes(raw[: len(raw) // 20])
+    with pytest.raises(ConversionError, match="truncated: .* before any vehicle_local_position"):
+        convert(early, quad_x)
+    empty = tmp_path / "empty.ulg"
+    empty.write_bytes(raw[:10])
+    with pytest.raises(ConversionError, match="shorter than a ULog's 16-byte header"):
+        convert(empty, quad_x, fmt="ulog")
 
 
 @needs_real_logs
@@ -346,6 +377,7 @@ def test_rosbag2_namespaces(quad_x, tmp_path: Path) -> None:
 
 _STRUCT = {
     "Q": "Q",
+    "h": "h",
     "B": "B",
     "c": "h",
     "C": "H",
@@ -369,15 +401,31 @@ _DATAFLASH_FORMATS = {
 }
 
 
-def _write_dataflash(path: Path, messages: list[tuple[str, dict]]) -> None:
+# ArduCopter 3.2 (2014; DataFlash/LogStructure.h and ArduCopter/Log.pde of that release): the first EKF,
+# a millisecond clock, RCOU Ch1..Ch12, an IMU per instance with no instance field, PARM without a time.
+_DATAFLASH_2014_FORMATS = {
+    "EKF1": (140, "IccCffffffccc", "TimeMS,Roll,Pitch,Yaw,VN,VE,VD,PN,PE,PD,GX,GY,GZ"),
+    "ATT": (1, "IccccCC", "TimeMS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw"),
+    "IMU": (131, "IffffffII", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA"),
+    "RCOU": (134, "I" + "h" * 12, "TimeMS," + ",".join(f"Ch{i}" for i in range(1, 13))),
+    "PARM": (129, "Nf", "Name,Value"),
+    "MSG": (132, "Z", "Message"),
+}
+
+
+def _write_dataflash(
+    path: Path,
+    messages: list[tuple[str, dict]],
+    formats: dict[str, tuple[int, str, str]] = _DATAFLASH_FORMATS,
+) -> None:
     data = bytearray()
-    for name, (type_id, fmt, labels) in _DATAFLASH_FORMATS.items():
+    for name, (type_id, fmt, labels) in formats.items():
         length = 3 + struct.calcsize("<" + "".join(_STRUCT[c] for c in fmt))
         data += b"\xa3\x95\x80" + struct.pack(
             "<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), labels.encode()
         )
     for name, fields in messages:
-        type_id, fmt, labels = _DATAFLASH_FORMATS[name]
+        type_id, fmt, labels = formats[name]
         values = []
         for code, label in zip(fmt, labels.split(","), strict=True):
             value = fields.get(label, 0)
@@ -419,10 +467,8 @@ def _dataflash_flight(with_ekf: bool = True) -> list[tuple[str, dict]]:
     return messages
 
 
-def test_dataflash_frames_channels_and_metadata(quad_x, tmp_path: Path) -> None:
-    path = tmp_path / "flight.bin"
-    _write_dataflash(path, _dataflash_flight())
-    assert detect_format(path) == "dataflash"
+def _converts_the_test_flight(path: Path, quad_x: Airframe) -> FlightLog:
+    """The flight of _dataflash_flight, however its generation of log spells it, converted right."""
     conversion = convert(path, quad_x)
     log = conversion.log
     assert len(log) == 100 and conversion.warnings == []
@@ -435,6 +481,14 @@ def test_dataflash_frames_channels_and_metadata(quad_x, tmp_path: Path) -> None:
     )
     assert np.allclose(np.column_stack([log.column(n) for n in ("p", "q", "r")])[1:], [0.1, -0.2, -0.3])
     assert np.allclose(log.column("imu_fz")[1:], 9.81, atol=1e-5)
+    return log
+
+
+def test_dataflash_frames_channels_and_metadata(quad_x, tmp_path: Path) -> None:
+    path = tmp_path / "flight.bin"
+    _write_dataflash(path, _dataflash_flight())
+    assert detect_format(path) == "dataflash"
+    log = _converts_the_test_flight(path, quad_x)
     # SERVO5..8 carry motors 1..4; PX4/ArduPilot quad X order -> our rotors on channels 5, 8, 6, 7.
     assert (
         log.metadata["rotor_channels"].startswith("5,8,6,7; quad X")
@@ -446,6 +500,45 @@ def test_dataflash_frames_channels_and_metadata(quad_x, tmp_path: Path) -> None:
     )
     assert "ArduCopter V4.5.7" in log.metadata["converted_from"]
     assert "RCOU (25 Hz) by zero-order hold" in log.metadata["resampling"]
+
+
+@pytest.mark.parametrize("prefix, channels", [("Ch", 12), ("Chan", 8)])  # ArduCopter 3.2, and before
+def test_a_2014_arducopter_log_converts_like_todays(
+    quad_x, tmp_path: Path, prefix: str, channels: int
+) -> None:
+    """EKF1 for XKF1, TimeMS for TimeUS, RCOU Ch1.. for C1..: the same flight comes out the same."""
+    formats = dict(_DATAFLASH_2014_FORMATS)
+    labels = "TimeMS," + ",".join(f"{prefix}{i}" for i in range(1, channels + 1))
+    formats["RCOU"] = (134, "I" + "h" * channels, labels)
+    messages: list[tuple[str, dict]] = [("MSG", {"Message": "ArduCopter V3.2.1 (36b405fb)"})]
+    for i in range(100):
+        ms, t = 1_000 + 10 * i, i * 0.01
+        messages += [
+            ("EKF1", {"TimeMS": ms, "PN": t, "PE": 2 * t, "PD": -3.0, "VN": 1.0, "VE": 2.0, "VD": 0.5}),
+            ("ATT", {"TimeMS": ms + 2, "Roll": 10.0, "Pitch": 5.0, "Yaw": 90.0}),
+            ("IMU", {"TimeMS": ms + 1, "GyrX": 0.1, "GyrY": 0.2, "GyrZ": 0.3, "AccZ": -9.81}),
+        ]
+        if i % 4 == 0:  # motors 1..4 on outputs 1..4, as ArduCopter 3.2 always had them
+            pulses = {f"{prefix}{c}": 1000 + 100 * c for c in range(1, channels + 1)}
+            messages.append(("RCOU", {"TimeMS": ms, **pulses}))
+    path = tmp_path / "2014.bin"
+    _write_dataflash(path, messages, formats)
+    log = _converts_the_test_flight(path, quad_x)
+    # Quad X: our rotors 1..4 are ArduCopter's motors 1, 4, 2, 3, on outputs 1, 4, 2, 3.
+    assert log.metadata["rotor_channels"].startswith("1,4,2,3; quad X")
+    assert np.allclose(log.group("actuators"), [1100.0, 1400.0, 1200.0, 1300.0])
+    assert f"RCOU {prefix}n" in log.metadata["rotor_channels"] and "EKF1" in log.metadata["derived"]
+    assert "ArduCopter V3.2.1" in log.metadata["converted_from"]
+
+
+def test_a_dataflash_log_without_any_position_says_what_it_has_and_what_would_do(quad_x, tmp_path):
+    path = tmp_path / "attitude_only.bin"
+    _write_dataflash(path, [m for m in _dataflash_flight() if m[0] != "XKF1"])
+    with pytest.raises(ConversionError) as refused:
+        convert(path, quad_x)
+    message = str(refused.value)
+    assert "none of the EKF messages XKF1, NKF1, EKF1 nor POS" in message
+    assert "it has ATT, IMU, MSG, PARM, RCOU" in message and "LOG_BITMASK" in message
 
 
 def test_dataflash_position_from_pos_and_missing_messages(quad_x, tmp_path: Path) -> None:

@@ -158,6 +158,46 @@ def test_rotor_speeds_in_rpm_are_recognised():
         identify(X8, rpm, [])
 
 
+def test_an_attitude_in_degrees_is_refused_with_its_evidence():
+    """By its range where an angle goes beyond what radians allow, else by p and q (issue 13)."""
+    log = flight("x8_octorotor", duration_s=8.0, seed=5)
+    degrees = _edit(log, **{name: np.degrees for name in ("roll", "pitch", "yaw")})
+    with pytest.raises(
+        LogMismatch, match=r"column (roll|pitch) is .* which no ZYX .* looks logged in degrees"
+    ):
+        identify(X8, degrees, [])
+    # A gentle flight: never beyond 1.5 degrees, which a pitch in radians may be, so only the rates can tell.
+    gentle = _edit(log, **{name: (lambda x: 0.05 * x) for name in ("roll", "pitch", "p", "q")})
+    assert np.degrees(np.abs(np.concatenate([gentle.column("roll"), gentle.column("pitch")]))).max() < 1.5
+    identify(X8, gentle, [])  # radians: accepted
+    gentle_degrees = _edit(gentle, **{name: np.degrees for name in ("roll", "pitch", "yaw")})
+    with pytest.raises(LogMismatch, match=r"change 5\d\.\d times as fast as the body rates p and q"):
+        identify(X8, gentle_degrees, [])
+
+
+def test_a_rest_with_motors_off_and_a_noisy_estimate_is_ground_not_flight():
+    """Motors off at 2-3 cm, the estimate's velocity and acceleration wandering as an EKF's on the ground."""
+    log = flight("x8_octorotor", duration_s=8.0, seed=5)
+    rest_s, dt = 3.0, float(np.median(np.diff(log.t)))
+    n = round(rest_s / dt)
+    rng = np.random.default_rng(3)
+    rest = {name: np.zeros(n) for name in log.columns}
+    rest["z"] = 0.025 + 0.005 * rng.standard_normal(n)
+    for name in ("vx", "vy", "vz"):
+        rest[name] = 0.1 * rng.standard_normal(n)
+    for name in ("ax", "ay", "az"):
+        rest[name] = 1.0 * rng.standard_normal(n)
+    rested = FlightLog(
+        np.concatenate([np.arange(n) * dt, log.t + rest_s]),
+        {name: np.concatenate([rest[name], values]) for name, values in log.columns.items()},
+        dict(log.metadata),
+    )
+    samples = load_samples(rested, X8)
+    assert not np.any(samples.valid[:n])
+    assert any("on the ground are not fitted" in note for note in samples.notes + samples.warnings)
+    assert np.count_nonzero(samples.valid[n:]) == np.count_nonzero(load_samples(log, X8).valid)
+
+
 def test_nan_samples_and_gaps_are_left_out_with_a_warning():
     log = flight("x8_octorotor", DRAGS, duration_s=20.0, seed=6)
     rng = np.random.default_rng(0)

@@ -350,6 +350,9 @@ def _read_log(
         raise NotEnoughData(
             f"{source}: {t.size} samples; identification needs at least {settings.min_usable_samples}"
         )
+    degrees = _attitude_in_degrees(flight)
+    if degrees is not None:
+        raise LogMismatch(f"{source}: {degrees}")
     dt = float(np.median(np.diff(t)))
     gaps = np.flatnonzero(np.diff(t) > settings.gap_factor * dt)
     if gaps.size:
@@ -359,6 +362,63 @@ def _read_log(
             f"{', ...' if gaps.size > 5 else ''}): nothing is derived or integrated across them"
         )
     return flight, source, warnings
+
+
+# Below this share of the weight, the rotors' thrust cannot be flight (idle, or stopped).
+IDLE_THRUST_SHARE = 0.1
+# ZYX Euler angles in radians: roll within +-pi, pitch within +-pi/2 (yaw is not bounded: a log may
+# unwrap it); a little more for rounding.
+EULER_BOUNDS_RAD = {"roll": math.pi, "pitch": math.pi / 2}
+EULER_BOUND_MARGIN_RAD = 0.01
+# Roll and pitch change about as fast as p and q say in radians, 180/pi = 57.3 times as fast in degrees;
+# a log is taken for degrees within this factor of 57.3, when the two go together (correlation at least
+# this, over at least this many sample pairs: the rotation is signal, not sensor noise).
+DEGREE_RATIO_SPREAD = 1.5
+DEGREE_RATIO_MIN_CORRELATION = 0.5
+DEGREE_RATIO_MIN_PAIRS = 20
+
+
+def _attitude_in_degrees(flight: FlightLog) -> str | None:
+    """Why the log's attitude is plainly in degrees (flight_log.md gives radians), or None.
+
+    Evidence: a roll or pitch that no ZYX angle in radians can be; or, with p and q logged, roll and
+    pitch changing about 57.3 times as fast as the body rates say.
+    """
+    advice = "the flight log gives roll, pitch, yaw in radians (multiply degrees by pi/180)"
+    for name, bound in EULER_BOUNDS_RAD.items():
+        angle = flight.column(name)
+        with np.errstate(invalid="ignore"):
+            beyond = np.flatnonzero(np.abs(angle) > bound + EULER_BOUND_MARGIN_RAD)
+        if beyond.size:
+            k = int(beyond[0])
+            return (
+                f"column {name} is {angle[k]:.6g} at t = {flight.t[k]:.6g} s, which no ZYX {name} in radians "
+                f"can be (at most {bound:.4f} in magnitude): the attitude looks logged in degrees; {advice}"
+            )
+    if not all(name in flight.columns for name in ("p", "q")):
+        return None
+    dt = np.diff(flight.t)
+    changes, rotations = [], []
+    for angle_name, rate_name in (("roll", "p"), ("pitch", "q")):
+        changes.append(np.diff(flight.column(angle_name)))
+        rate_values = flight.column(rate_name)
+        rotations.append(0.5 * (rate_values[1:] + rate_values[:-1]) * dt)
+    change, rotation = np.concatenate(changes), np.concatenate(rotations)
+    usable = np.isfinite(change) & np.isfinite(rotation)
+    change, rotation = change[usable], rotation[usable]
+    if change.size < DEGREE_RATIO_MIN_PAIRS or np.ptp(rotation) == 0 or np.ptp(change) == 0:
+        return None
+    if not np.corrcoef(change, rotation)[0, 1] >= DEGREE_RATIO_MIN_CORRELATION:
+        return None  # too little rotation against the noise to tell
+    ratio = float(np.dot(change, rotation) / np.dot(rotation, rotation))
+    per_degree = 180.0 / math.pi
+    if not per_degree / DEGREE_RATIO_SPREAD <= ratio <= per_degree * DEGREE_RATIO_SPREAD:
+        return None
+    return (
+        f"columns roll and pitch change {ratio:.1f} times as fast as the body rates p and q say (least "
+        f"squares over {change.size} sample pairs; 1 if both were radians, 57.3 for degrees against rad/s): "
+        f"the attitude looks logged in degrees; {advice}"
+    )
 
 
 @dataclass
@@ -516,6 +576,10 @@ def _ground_contact(
         return contact, [
             f"ground contact: the log's landed column ({np.count_nonzero(contact)} samples landed)"
         ]
+    # Rotors at idle or stopped hold nothing up: the vehicle rests on something, however its estimated
+    # motion wanders (an EKF's velocity on the ground is noisy). A log resting at 2-3 cm with motors off,
+    # fitted as flight, came out as a dead motor.
+    idle = np.all(np.isfinite(motion.omega), axis=1) & (thrust_nominal < IDLE_THRUST_SHARE * weight)
     if motion.height_known:
         rotor_height = p[:, 2:3] + np.einsum("tj,nj->tn", motion.R_WB[:, 2, :], airframe.rotor_positions_m)
         lowest = np.nanmin(p[:, 2]) if np.any(np.isfinite(p[:, 2])) else np.inf
@@ -525,9 +589,9 @@ def _ground_contact(
         contact |= (
             still & (thrust_nominal < 0.85 * weight) & (np.nan_to_num(p[:, 2], nan=np.inf) < lowest + 0.05)
         )
-        return contact, []
+        return contact | idle, []
     # Without height, only thrust far below the weight while still says "on the ground".
-    return still & (thrust_nominal < 0.5 * weight), []
+    return idle | (still & (thrust_nominal < 0.5 * weight)), []
 
 
 def _check_thrust(

@@ -63,10 +63,15 @@ class LogBuilder:
         values: FloatArray,
         method: Literal["linear", "hold"],
         label: str,
+        max_gap_s: float | None = None,
     ) -> None:
-        """A stream sampled at its own stamps ``ts``, brought onto the time base by ``method``."""
+        """A stream sampled at its own stamps ``ts``, brought onto the time base by ``method``.
+
+        Nothing is bridged across a gap longer than ``max_gap_s`` (default: a few of the stream's
+        periods); a state published only when it changes is held with ``math.inf``.
+        """
         values = np.asarray(values, dtype=float).reshape(ts.size, len(names))
-        max_gap = GAP_PERIODS * median_period(ts)
+        max_gap = GAP_PERIODS * median_period(ts) if max_gap_s is None else max_gap_s
         resample, how = (
             (interpolate, "linear interpolation") if method == "linear" else (hold, "zero-order hold")
         )

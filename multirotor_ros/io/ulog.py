@@ -13,6 +13,11 @@ What is taken, and how frames change (NED/FRD -> ENU/FLU through :mod:`multiroto
 - ``actuator_outputs`` (instance 0 = PX4's MAIN outputs unless chosen otherwise): PWM [µs] as
   u_k, channels chosen by :mod:`multirotor_ros.io.rotor_channels` (``VT_MOT_ID`` tells where a
   VTOL's lift motors are), omega_k through the airframe's motor map.
+- ``vehicle_land_detected.landed`` (published when it changes) -> ``landed`` (1 on the ground, 0 in
+  the air), held until the next message: identification and discrepancy take ground contact from it.
+
+A file that ends inside a message was cut short (a power loss, a partial download): it is converted up
+to where it ends with a warning, and a topic it lacks is reported as lost to the truncation.
 
 A ULog usually starts and ends on the ground (the sample log in shared/data/real_logs is mostly
 idle on the ground); the converter keeps the whole log, and tools pick the flight with t ranges.
@@ -20,6 +25,11 @@ idle on the ground); the converter keeps the whole log, and tools pick the fligh
 
 from __future__ import annotations
 
+import contextlib
+import io
+import math
+import mmap
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +42,38 @@ from multirotor_ros.io.resample import sort_unique
 from multirotor_ros.io.rotor_channels import RotorChannelError, resolve_rotor_channels
 from multirotor_ros.model.airframe import Airframe
 
-TOPICS = ["vehicle_local_position", "vehicle_attitude", "sensor_combined", "actuator_outputs"]
+TOPICS = [
+    "vehicle_local_position",
+    "vehicle_attitude",
+    "sensor_combined",
+    "actuator_outputs",
+    "vehicle_land_detected",
+]
+# The file header (magic, version, timestamp), then messages of a 3-byte header (size, type) and a body.
+ULOG_FILE_HEADER = struct.Struct("<7sBQ")
+ULOG_MAGIC = b"ULog\x01\x125"
+ULOG_MESSAGE_HEADER = struct.Struct("<HB")
+
+
+def truncated_at(path: Path) -> tuple[int, int] | None:
+    """(offset of the message the file ends inside, file size), or None if it ends on a message boundary.
+
+    ULog has no end marker: a file cut at a message boundary cannot be told from a whole one, and
+    pyulog stops quietly at a partial message; walking the message headers finds a cut anywhere else.
+    """
+    size = path.stat().st_size
+    if size < ULOG_FILE_HEADER.size:
+        return (0, size)
+    with path.open("rb") as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        if data[: len(ULOG_MAGIC)] != ULOG_MAGIC:
+            return None  # not a ULog: pyulog says so
+        offset, header = ULOG_FILE_HEADER.size, ULOG_MESSAGE_HEADER
+        while offset + header.size <= size:
+            body, _ = header.unpack_from(data, offset)
+            if offset + header.size + body > size:
+                return (offset, size)
+            offset += header.size + body
+        return None if offset == size else (offset, size)
 
 
 def _stamps(data: dict[str, Any]) -> np.ndarray:
@@ -43,14 +84,21 @@ def _fields(data: dict[str, Any], names: list[str]) -> np.ndarray:
     return np.column_stack([np.asarray(data[name], dtype=float) for name in names])
 
 
-def _stream(ulog: Any, topic: str, instance: int, path: Path, required: bool) -> dict[str, Any] | None:
+def _stream(
+    ulog: Any, topic: str, instance: int, path: Path, required: bool, truncation: str | None
+) -> dict[str, Any] | None:
     try:
         dataset = ulog.get_dataset(topic, instance)
     except (KeyError, IndexError, ValueError):
         if required:
-            present = sorted({d.name for d in ulog.data_list})
+            present = ", ".join(sorted({d.name for d in ulog.data_list})) or "none"
+            if truncation:
+                raise ConversionError(
+                    f"{path}: {truncation}, before any {topic} (instance {instance}) message; topics it "
+                    f"holds: {present}"
+                ) from None
             raise ConversionError(
-                f"{path}: no {topic} (instance {instance}) in this ULog; topics present: {', '.join(present)}"
+                f"{path}: no {topic} (instance {instance}) in this ULog; topics present: {present}"
             ) from None
         return None
     return dataset.data
@@ -60,16 +108,27 @@ def convert_ulog(
     path: str | Path, airframe: Airframe, rotor_channels: str | None = None, actuator_instance: int = 0
 ) -> tuple[FlightLog, list[str]]:
     """Convert a PX4 ULog; returns the log and warnings for the user."""
-    from pyulog import ULog
-
     path = Path(path)
     try:
-        ulog = ULog(str(path), TOPICS)
+        cut = truncated_at(path)
+    except OSError as error:
+        raise ConversionError(f"{path}: cannot read: {error.strerror or error}") from None
+    if cut is None:
+        truncation = None
+    elif cut[1] < ULOG_FILE_HEADER.size:
+        truncation = f"truncated: {cut[1]} bytes, shorter than a ULog's {ULOG_FILE_HEADER.size}-byte header"
+    else:
+        truncation = (
+            f"truncated: the file ends at byte {cut[1]} inside a message that starts at byte {cut[0]} "
+            "(cut short by a power loss or a partial download)"
+        )
+    try:
+        ulog = _read_ulog(path)
     except Exception as error:  # pyulog raises bare Exceptions on corrupt files
-        raise ConversionError(f"{path}: not a readable ULog: {error}") from None
+        raise ConversionError(f"{path}: {truncation or 'not a readable ULog'}: {error}") from None
     warnings: list[str] = []
 
-    position = _stream(ulog, "vehicle_local_position", 0, path, required=True)
+    position = _stream(ulog, "vehicle_local_position", 0, path, True, truncation)
     assert position is not None
     stamps = _stamps(position)
     t_base, kept_rows, dropped = sort_unique(stamps, np.arange(stamps.size, dtype=float))
@@ -95,12 +154,12 @@ def convert_ulog(
                 f"{invalid} of {rows.size} rows: PX4 {flag} = 0"
             )
 
-    attitude = _stream(ulog, "vehicle_attitude", 0, path, required=True)
+    attitude = _stream(ulog, "vehicle_attitude", 0, path, True, truncation)
     assert attitude is not None
     ts, q, _ = sort_unique(_stamps(attitude), _fields(attitude, [f"q[{i}]" for i in range(4)]))
     builder.put_attitude(ts, quat_ned_frd_to_enu_flu(q), "vehicle_attitude.q")
 
-    imu = _stream(ulog, "sensor_combined", 0, path, required=False)
+    imu = _stream(ulog, "sensor_combined", 0, path, False, truncation)
     if imu is not None:
         ts, gyro, _ = sort_unique(
             _stamps(imu), frd_to_flu(_fields(imu, [f"gyro_rad[{i}]" for i in range(3)]))
@@ -118,7 +177,7 @@ def convert_ulog(
     else:
         warnings.append("no sensor_combined: p, q, r not written")
 
-    outputs = _stream(ulog, "actuator_outputs", actuator_instance, path, required=True)
+    outputs = _stream(ulog, "actuator_outputs", actuator_instance, path, True, truncation)
     assert outputs is not None
     n_channels = int(np.max(outputs["noutputs"]))
     parameters = dict(ulog.initial_parameters)
@@ -139,6 +198,16 @@ def convert_ulog(
     if warning:
         warnings.append(warning)
 
+    land = _stream(ulog, "vehicle_land_detected", 0, path, False, truncation)
+    if land is not None:
+        ts, landed, _ = sort_unique(_stamps(land), _fields(land, ["landed"]))
+        builder.put_stream(["landed"], ts, landed, "hold", "vehicle_land_detected.landed", max_gap_s=math.inf)
+        builder.metadata["landed_column"] = "landed: PX4's land detector, 1 on the ground, 0 in the air"
+    else:
+        warnings.append("no vehicle_land_detected: no landed column (ground contact is judged from motion)")
+    if truncation is not None:
+        warnings.append(f"{truncation}; converted up to t = {builder.t_abs[-1]:.3f} s of the log's clock")
+
     info = ulog.msg_info_dict
     described = ", ".join(
         f"{key} {info[key]}" for key in ("sys_name", "ver_sw_branch", "ver_hw") if key in info
@@ -154,3 +223,11 @@ def convert_ulog(
         "p,q,r and imu_f* body FLU",
     }
     return builder.build(first), warnings
+
+
+def _read_ulog(path: Path) -> Any:
+    """The topics of :data:`TOPICS` read by pyulog, whose notes on corrupt files (stdout) are dropped."""
+    from pyulog import ULog
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        return ULog(str(path), TOPICS)
