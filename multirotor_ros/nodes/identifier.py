@@ -35,8 +35,10 @@ counted, and logged once per reason with throttled summaries after: wrong rotor 
 values that are not finite or not physically plausible (multirotor_ros.plausibility: positions,
 speeds, rates, accelerations, a position jump since the last accepted one, rotor speeds above the
 airframe's maximum), a stamp that repeats with other content, goes back, or lies more than
-``future_stamp_tolerance_s`` ahead of the node's clock (refused alone, never kept as the newest; under
-``use_sim_time`` that holds every message until the first ``clock``). A message equal to the last one
+``future_stamp_tolerance_s`` ahead of the node's clock (refused alone, never kept as the newest). Under
+``use_sim_time`` a message that comes before the node's first ``clock`` is not looked at: there is no
+time yet to judge it by, and a node joining a running simulator gets its odometry and clock in either
+order. A message equal to the last one
 used on its topic is a resend (a lockstep simulator resends its newest odometry while it waits for a
 command): no data and no error, ignored without a log line and counted (``<topic>_resent`` in the
 ``inputs`` status below). Samples that pass are still gated on their force residual
@@ -413,6 +415,8 @@ class IdentifierNode(Node):
         is not silent) and to see the node's clock go back. A resend (a lockstep simulator sends its
         newest odometry again while it waits for a command) is no new data, no error either.
         """
+        if not self._time.running:
+            return False  # no time yet to judge a stamp by (simulated time before the first /clock)
         now_ns = self._time.now_ns()
         back_ns = (self._clock_ns or 0) - now_ns
         if back_ns > self._params["future_stamp_tolerance_s"] * 1e9:

@@ -33,7 +33,9 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
 - Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
   node's namespace: a graph has one time. A simulator that hears another clock in its first
   ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers; while
-  the graph lists another clock publisher not heard yet it listens on, up to ``CLOCK_CHECK_MAX_S``.
+  the graph lists another clock publisher not heard yet, or lists no other node at all (discovery not
+  done: seen on a loaded machine after 2 s), it listens on, up to ``CLOCK_CHECK_MAX_S`` and
+  ``LONE_CHECK_S``.
   Several vehicles share one simulator node and its clock.
 - ``pacing`` (diagnostic_msgs/DiagnosticArray, 1 Hz wall): one status ``simulator pacing`` with the
   target and achieved real-time factors, control periods on time and late, commands, lockstep waits.
@@ -106,6 +108,9 @@ CLOCK_CHECK_S = 2.0
 CLOCK_CHECK_MAX_S = 15.0
 # What the graph gives as the name of a node that discovery has not fully seen yet (rmw_dds_common).
 UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
+# How long a simulator that sees no other node in the graph waits for discovery before it concludes it is
+# alone: a second simulator under CI load had neither heard nor listed the first after 2 s.
+LONE_CHECK_S = 4.0
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
 # STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
 RESEND_PERIOD_S = 0.25
@@ -412,6 +417,11 @@ class SimulatorNode(Node):
             for info in self.get_publishers_info_by_topic(topic)
         )
 
+    def _alone_in_the_graph(self) -> bool:
+        """Whether discovery has shown this node no other node yet."""
+        mine = (self.get_name(), self.get_namespace())
+        return all(node == mine for node in self.get_node_names_and_namespaces())
+
     def _watch_clocks(self) -> None:
         """Start, unless another node's clock was heard: then refuse to run (module docstring).
 
@@ -427,8 +437,11 @@ class SimulatorNode(Node):
         ]
         heard = self._clock_heard
         named = [name for name in others if UNKNOWN_NODE_NAME not in name]
+        waited_s = time.monotonic() - self._clock_watch_since_s
+        if not heard and not others and waited_s < LONE_CHECK_S and self._alone_in_the_graph():
+            return  # checked again in CLOCK_CHECK_S
         waiting_for = (heard and not named) or (not heard and others)
-        if waiting_for and time.monotonic() - self._clock_watch_since_s < CLOCK_CHECK_MAX_S:
+        if waiting_for and waited_s < CLOCK_CHECK_MAX_S:
             return  # checked again in CLOCK_CHECK_S
         self._clock_watch.cancel()
         self.destroy_subscription(self._clock_listener)
