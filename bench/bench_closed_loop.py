@@ -175,14 +175,7 @@ def node_processes(
     **env: str,
 ) -> list[subprocess.Popen]:
     node = [sys.executable, "-m", "multirotor_ros.cli", "node"]
-    watching = [
-        start(
-            [*node, "identifier", "--ros-args", "-p", f"airframe:={airframe}", "-p", "use_sim_time:=true"],
-            logs / f"identifier-{tag}.log",
-            **env,
-        )
-    ]
-    return [
+    processes = [
         start(
             [*node, "simulator", "--ros-args", "-p", f"airframe:={airframe}", "-p", "publish_clock:=true"]
             + [a for p in ["physics_rate_hz:=1000.0", "initial_z:=1.0", *simulator] for a in ("-p", p)],
@@ -195,8 +188,17 @@ def node_processes(
             logs / f"controller-{tag}.log",
             **env,
         ),
-        *(watching if identifier else []),
     ]
+    if identifier:
+        processes.append(
+            start(
+                [*node, "identifier", "--ros-args"]
+                + ["-p", f"airframe:={airframe}", "-p", "use_sim_time:=true"],
+                logs / f"identifier-{tag}.log",
+                **env,
+            )
+        )
+    return processes
 
 
 def fly(probe: Probe, processes: list[subprocess.Popen], commands: dict[int, float], logs: Path) -> None:
