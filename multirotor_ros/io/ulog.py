@@ -55,25 +55,30 @@ ULOG_MAGIC = b"ULog\x01\x125"
 ULOG_MESSAGE_HEADER = struct.Struct("<HB")
 
 
-def truncated_at(path: Path) -> tuple[int, int] | None:
-    """(offset of the message the file ends inside, file size), or None if it ends on a message boundary.
+def truncation_of(path: Path) -> str | None:
+    """How the file was cut short, or None if it ends on a message boundary.
 
     ULog has no end marker: a file cut at a message boundary cannot be told from a whole one, and
     pyulog stops quietly at a partial message; walking the message headers finds a cut anywhere else.
     """
     size = path.stat().st_size
     if size < ULOG_FILE_HEADER.size:
-        return (0, size)
+        return f"truncated: {size} bytes, shorter than a ULog's {ULOG_FILE_HEADER.size}-byte header"
     with path.open("rb") as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
         if data[: len(ULOG_MAGIC)] != ULOG_MAGIC:
             return None  # not a ULog: pyulog says so
         offset, header = ULOG_FILE_HEADER.size, ULOG_MESSAGE_HEADER
         while offset + header.size <= size:
-            body, _ = header.unpack_from(data, offset)
-            if offset + header.size + body > size:
-                return (offset, size)
-            offset += header.size + body
-        return None if offset == size else (offset, size)
+            end = offset + header.size + header.unpack_from(data, offset)[0]
+            if end > size:
+                break
+            offset = end
+    if offset == size:
+        return None
+    return (
+        f"truncated: the file ends at byte {size} inside a message that starts at byte {offset} "
+        "(cut short by a power loss or a partial download)"
+    )
 
 
 def _stamps(data: dict[str, Any]) -> np.ndarray:
@@ -110,18 +115,9 @@ def convert_ulog(
     """Convert a PX4 ULog; returns the log and warnings for the user."""
     path = Path(path)
     try:
-        cut = truncated_at(path)
+        truncation = truncation_of(path)
     except OSError as error:
         raise ConversionError(f"{path}: cannot read: {error.strerror or error}") from None
-    if cut is None:
-        truncation = None
-    elif cut[1] < ULOG_FILE_HEADER.size:
-        truncation = f"truncated: {cut[1]} bytes, shorter than a ULog's {ULOG_FILE_HEADER.size}-byte header"
-    else:
-        truncation = (
-            f"truncated: the file ends at byte {cut[1]} inside a message that starts at byte {cut[0]} "
-            "(cut short by a power loss or a partial download)"
-        )
     try:
         ulog = _read_ulog(path)
     except Exception as error:  # pyulog raises bare Exceptions on corrupt files

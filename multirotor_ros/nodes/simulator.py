@@ -428,7 +428,8 @@ class SimulatorNode(Node):
         Heard, not merely listed in the graph: a simulator that just stopped stays listed for a while
         (discovery forgets it late) but publishes nothing, and a restart must not be refused because of it.
         A listed publisher not heard yet is listened for until ``CLOCK_CHECK_MAX_S``; so is the name of
-        one heard whose node discovery has not named yet (rmw lists it as ``_NODE_NAME_UNKNOWN_``).
+        one heard whose node discovery has not named yet (rmw lists it as ``_NODE_NAME_UNKNOWN_``). While
+        the graph shows no other node at all, discovery may not have run yet: until ``LONE_CHECK_S``.
         """
         others = [
             name
