@@ -124,6 +124,13 @@ class ManagedProcess:
         """Everything the process printed so far."""
         return self.log_path.read_text(encoding="utf-8", errors="replace")
 
+    def wait_for_log(self, text: str, timeout: float) -> str:
+        """The log once it holds ``text``; after ``timeout`` s without it, the log as it is."""
+        deadline = time.monotonic() + timeout
+        while text not in (log := self.log_text()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        return log
+
     def log_tail(self, lines: int = LOG_TAIL_LINES) -> str:
         """The last lines of the log, for failure messages."""
         return "\n".join(self.log_text().splitlines()[-lines:])

@@ -14,7 +14,6 @@ import math
 import signal
 import socket
 import threading
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -339,10 +338,8 @@ def test_the_identifier_names_a_rotor_fault_injected_while_arducopter_flies(
     ros_probe.wait_for_node("/f1/mavlink_bridge", timeout=60.0)
     frame = RotorChannels(load_airframe(airframe_name)).map.frame
     assert frame is not None
-    deadline = time.monotonic() + 30.0
-    while "outputs:" not in bridge.log_text() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert f"ardupilot outputs: rotor_channels 5,1,4,6,2,3, derived from {frame.title}" in bridge.log_text()
+    log = bridge.wait_for_log("outputs:", 30.0)
+    assert f"ardupilot outputs: rotor_channels 5,1,4,6,2,3, derived from {frame.title}" in log
     assert ARDUCOPTER is not None
     with ArduCopterSitl(
         ARDUCOPTER, tmp_path / "sitl", port, frame_parameters(frame), speedup=2.0

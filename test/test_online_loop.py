@@ -348,11 +348,9 @@ def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fl
         ):
             # Its inputs heard and used: the vehicle, never flown here, is found on the ground.
             status.wait_for(lambda m: any(s.name == "inputs" for s in m.status), timeout=STARTUP_TIMEOUT_S)
-            deadline = time.monotonic() + STARTUP_TIMEOUT_S
-            while "resting at t = " not in identifier.log_text() and time.monotonic() < deadline:
-                time.sleep(0.2)
-            assert "resting at t = " in identifier.log_text(), identifier.log_text()
-            assert "stamp in the future" not in identifier.log_text(), identifier.log_text()
+            log = identifier.wait_for_log("resting at t = ", STARTUP_TIMEOUT_S)
+            assert "resting at t = " in log, log
+            assert "stamp in the future" not in log, log
 
 
 @pytest.mark.ros
