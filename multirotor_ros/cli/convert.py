@@ -9,7 +9,10 @@ from pathlib import Path
 from multirotor_ros.cli import CommandError
 
 COMMAND = "convert"
-HELP = "convert a rosbag2, PX4 ULog, ArduPilot dataflash or data-driven-dynamics CSV to a flight-log CSV"
+HELP = (
+    "convert a rosbag2, PX4 ULog, ArduPilot dataflash, data-driven-dynamics CSV or Crazyflie usd log "
+    "to a flight-log CSV"
+)
 
 DESCRIPTION = """\
 Convert a log to the flight-log CSV of shared/spec/flight_log.md (world ENU, body FLU, SI units,
@@ -24,6 +27,9 @@ Formats (--format auto looks at the content):
   dataflash  ArduPilot .bin: XKF1/NKF1 or POS (time base), ATT, IMU, RCOU (PWM), PARM.
   ddd-csv    ethz-asl data-driven-dynamics CSV (timestamp, u0.., vx.. world NED, q0.. FRD->NED,
              acc_b.. FRD specific force): world velocity and gravity-free acceleration.
+  crazyflie-usd  Bitcraze micro-SD card log (magic 0xBC): stateEstimate.x/y/z (time base), vx..,
+             ax.. [g], roll/yaw [deg] (pitch derived from the acceleration when not logged),
+             motor.m1..m4 / 65535 -> u_k (normalized), pm.vbatMV -> battery_v.
 
 Streams at other rates are brought onto the time base by linear interpolation (measurements),
 zero-order hold (actuator outputs, commands) or quaternion interpolation (attitude); cells stay
@@ -35,7 +41,8 @@ Without --rotor-channels, quad X and hexa X airframes are matched to PX4/ArduPil
 geometry, and the log's parameters (PX4 VT_MOT_ID, PWM_MAIN_FUNCn; ArduPilot SERVOn_FUNCTION) say
 which channel carries each motor. PX4 quad X numbers its motors 1 front-right, 2 rear-left,
 3 front-left, 4 rear-right; our quad_x is 1 front-right, 2 rear-right, 3 rear-left, 4 front-left,
-so with motors on channels 1-4 the default is --rotor-channels 1,4,2,3.
+so with motors on channels 1-4 the default is --rotor-channels 1,4,2,3. A Crazyflie log is matched
+to Bitcraze's order (M1 front-right, M2 rear-right, M3 rear-left, M4 front-left).
 """
 
 EPILOG = """\
@@ -44,6 +51,7 @@ examples:
   multirotor convert flight.ulg --airframe quad_x --rotor-channels 5,8,6,7 --out flight.csv
   multirotor convert bags/run1 --airframe x8_octorotor --namespace /uav1 --out run1.csv
   multirotor convert 00000042.BIN --airframe hexarotor_f550 --out flight.csv
+  multirotor convert motor_data/normal_flight/E8_log00 --airframe crazyflie_2_1 --out E8_log00.csv
 """
 
 
@@ -62,14 +70,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--format",
         default="auto",
-        choices=("auto", "rosbag2", "ulog", "dataflash", "ddd-csv"),
+        choices=("auto", "rosbag2", "ulog", "dataflash", "ddd-csv", "crazyflie-usd"),
         help="input format",
     )
     parser.add_argument(
         "--rotor-channels",
         metavar="C1,C2,...",
         help="1-based actuator channel of rotor 1, 2, ... in the airframe's numbering "
-        "(ulog, dataflash, ddd-csv; ddd-csv channel 1 is u0)",
+        "(ulog, dataflash, ddd-csv, crazyflie-usd; ddd-csv channel 1 is u0)",
     )
     parser.add_argument("--namespace", metavar="NS", help="rosbag2 only: topic namespace, e.g. /uav1")
     parser.add_argument(

@@ -1,7 +1,8 @@
 """Other logs -> flight-log CSV: format detection and dispatch to one converter per format.
 
 Each converter (:mod:`~multirotor_ros.io.rosbag`, :mod:`~multirotor_ros.io.ulog`,
-:mod:`~multirotor_ros.io.dataflash`, :mod:`~multirotor_ros.io.ddd_csv`) documents its topics or
+:mod:`~multirotor_ros.io.dataflash`, :mod:`~multirotor_ros.io.ddd_csv`,
+:mod:`~multirotor_ros.io.crazyflie_usd`) documents its topics or
 messages, frames and resampling, and writes the same in the log's metadata. Their libraries
 (rosbags, pyulog, pymavlink) are imported only when a file of that kind is converted.
 """
@@ -15,9 +16,11 @@ from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.io.log_builder import ConversionError
 from multirotor_ros.model.airframe import Airframe
 
-FORMATS = ("rosbag2", "ulog", "dataflash", "ddd-csv")
+FORMATS = ("rosbag2", "ulog", "dataflash", "ddd-csv", "crazyflie-usd")
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 _DATAFLASH_MAGIC = b"\xa3\x95\x80"
+# Magic 0xBC, then the little-endian u16 format version (1 or 2).
+_CRAZYFLIE_USD_STARTS = (b"\xbc\x01\x00", b"\xbc\x02\x00")
 
 
 @dataclass
@@ -43,6 +46,8 @@ def detect_format(path: str | Path) -> str:
         return "ulog"
     if head.startswith(_DATAFLASH_MAGIC):
         return "dataflash"
+    if head.startswith(_CRAZYFLIE_USD_STARTS):
+        return "crazyflie-usd"
     from multirotor_ros.io.ddd_csv import looks_like_ddd_csv
 
     first_line = head.split(b"\n", 1)[0].decode("utf-8", errors="replace")
@@ -53,8 +58,8 @@ def detect_format(path: str | Path) -> str:
             f"{path}: already a flight log (metadata or a 't,...' header): nothing to convert"
         )
     raise ConversionError(
-        f"{path}: unknown format (not a rosbag2 directory, ULog, dataflash .bin or "
-        "data-driven-dynamics CSV); give --format"
+        f"{path}: unknown format (not a rosbag2 directory, ULog, dataflash .bin, "
+        "data-driven-dynamics CSV or Crazyflie usd log); give --format"
     )
 
 
@@ -96,6 +101,10 @@ def convert(
             from multirotor_ros.io.dataflash import convert_dataflash
 
             log, warnings = convert_dataflash(path, airframe, rotor_channels)
+        elif kind == "crazyflie-usd":
+            from multirotor_ros.io.crazyflie_usd import convert_crazyflie_usd
+
+            log, warnings = convert_crazyflie_usd(path, airframe, rotor_channels)
         else:
             from multirotor_ros.io.ddd_csv import convert_ddd_csv
 

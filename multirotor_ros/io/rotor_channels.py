@@ -51,6 +51,13 @@ LAYOUTS = (
 )
 
 
+# Bitcraze's numbering (power_distribution_quadrotor.c mixes motor 1 front-right, 2 rear-right,
+# 3 rear-left, 4 front-left; 1 and 3 turn ccw): the same places as PX4's quad X, other numbers.
+CRAZYFLIE_LAYOUT = MotorLayout(
+    "Crazyflie (Bitcraze motor order M1..M4)", (45.0, 135.0, -135.0, -45.0), ("ccw", "cw", "ccw", "cw")
+)
+
+
 def parse_rotor_channels(text: str, n_rotors: int) -> list[int]:
     """``"1,4,2,3"`` -> [1, 4, 2, 3], checked: N distinct channels >= 1."""
     try:
@@ -72,10 +79,12 @@ def _angle_difference(a: float, b: float) -> float:
     return abs((a - b + 180.0) % 360.0 - 180.0)
 
 
-def match_layout(airframe: Airframe) -> tuple[MotorLayout, list[int]] | None:
-    """The layout whose motors sit where our rotors are (same spin), and rotor k's motor number."""
+def match_layout(
+    airframe: Airframe, layouts: Sequence[MotorLayout] = LAYOUTS
+) -> tuple[MotorLayout, list[int]] | None:
+    """The first of ``layouts`` whose motors sit where our rotors are (same spin), and rotor k's motor."""
     azimuths = [math.degrees(math.atan2(-r.position_m[1], r.position_m[0])) for r in airframe.rotors]
-    for layout in LAYOUTS:
+    for layout in layouts:
         if len(layout.azimuth_deg) != airframe.n_rotors:
             continue
         spacing = min(
@@ -127,21 +136,24 @@ def resolve_rotor_channels(
     parameters: Mapping[str, float] | None = None,
     n_channels: int | None = None,
     channel_names: Sequence[str] | None = None,
+    layouts: Sequence[MotorLayout] = LAYOUTS,
 ) -> tuple[list[int], str]:
     """1-based channel of each of our rotors, and a line for ``# rotor_channels:`` saying why.
 
     ``n_channels`` is how many channels the log has (checked); ``channel_names`` names them in the
-    note (``u0``..``u3`` for a CSV whose first column is channel 1).
+    note (``u0``..``u3`` for a CSV whose first column is channel 1); ``layouts`` are the motor orders
+    the log's flight stack may use.
     """
     if explicit is not None:
         channels = parse_rotor_channels(explicit, airframe.n_rotors)
         why = "given with --rotor-channels"
     else:
-        matched = match_layout(airframe)
+        matched = match_layout(airframe, layouts)
         if matched is None:
+            known = "; ".join(layout.name for layout in layouts)
             raise RotorChannelError(
-                f"airframe {airframe.name!r} ({airframe.n_rotors} rotors) matches no known flight-stack "
-                "motor order (quad X, hexa X); give --rotor-channels with the channel of rotor 1, 2, ... "
+                f"airframe {airframe.name!r} ({airframe.n_rotors} rotors) matches no known motor order "
+                f"({known}); give --rotor-channels with the channel of rotor 1, 2, ... "
                 "in the airframe's numbering"
             )
         layout, motors = matched

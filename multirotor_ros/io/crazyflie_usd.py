@@ -1,0 +1,347 @@
+"""Bitcraze Crazyflie micro-SD card logs ("usd log", the firmware's usddeck.c) -> flight log.
+
+The file describes itself (Bitcraze's own reader is tools/usdlog/cfusdlog.py in crazyflie-firmware):
+
+- ``u8`` magic 0xBC, ``u16`` version (1 or 2), ``u16`` number of event types;
+- per event type: ``u16`` id, its name (NUL-terminated), ``u16`` variable count, then each variable as
+  a NUL-terminated ``group.name(T)`` where T is a ``struct`` code (``B b H h I i f`` ...);
+- records: ``u16`` event id, a timestamp (version 1: ``u32`` ms; version 2: ``u64`` µs), then the
+  event's variables packed little-endian;
+- a ``u32`` CRC-32 (zlib's) of everything before it.
+
+A file cut short (the card pulled while logging, a power loss) has no CRC at its end: the records are
+read up to the last whole one and the user is told how many bytes were left.
+
+What is taken (Crazyflie's world frame is x forward at start-up, y left, z up, i.e. ENU-like; body
+frame x forward, y left, z up, i.e. FLU; a missing variable is left out, never invented):
+
+- ``stateEstimate.x/y/z`` [m] is the time base (its event's stamps); ``vx/vy/vz`` [m/s] in world;
+  ``ax/ay/az`` [g] in world with gravity removed, times 9.81 m/s² (the firmware's GRAVITY_MAGNITUDE).
+- ``stateEstimate.roll`` and ``yaw`` [deg] -> rad. A log without yaw (three CrazyPAD flights) gets
+  yaw = 0, said in the notes: the Crazyflie holds its take-off heading, within a few degrees.
+  ``stateEstimate.pitch`` is logged with the legacy sign (positive nose up), so our ZYX pitch is its
+  negative. When pitch is not logged (CrazyPAD's motor_data files log roll and yaw only), it is
+  derived from the direction of the specific force ``f = a + g e_z`` in the yaw-rotated frame,
+  ``atan2(f_x', f_z')``: the estimator computed the world acceleration by rotating the accelerometer
+  with its attitude, so rotating it back recovers the tilt. Rotor drag and accelerometer misalignment
+  tilt the specific force off the body z axis; the notes give the RMS difference between the roll
+  derived the same way and the logged roll (1-4 deg on CrazyPAD's flights) as the measure of that error.
+- ``motor.m1..m4`` (the motor power command, 0..65535, after the mixer and before the battery
+  compensation that turns it into ``pwm.m*_pwm``) -> ``u_k`` = command / 65535 (``normalized``), and
+  ``omega_k`` through the airframe's motor map. Without ``motor.m*``, ``pwm.m*_pwm`` is taken with a
+  warning (it moves with battery voltage at constant thrust).
+- ``pm.vbatMV`` [mV] or ``pm.vbat`` [V] -> extra column ``battery_v``.
+
+Rotor k of the airframe is Bitcraze's motor M_k matched by geometry (M1 front-right, M2 rear-right,
+M3 rear-left, M4 front-left; :data:`~multirotor_ros.io.rotor_channels.CRAZYFLIE_LAYOUT`) unless
+``--rotor-channels`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from multirotor_ros.io.flight_log import FlightLog
+from multirotor_ros.io.log_builder import ConversionError, LogBuilder
+from multirotor_ros.io.resample import sort_unique
+from multirotor_ros.io.rotor_channels import CRAZYFLIE_LAYOUT, RotorChannelError, resolve_rotor_channels
+from multirotor_ros.model.airframe import Airframe
+
+USD_MAGIC = 0xBC
+CRAZYFLIE_GRAVITY_M_S2 = 9.81
+MOTOR_COMMAND_FULL_SCALE = 65535.0
+# Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
+HELD_HEADING_STD_DEG = 2.6
+_PREAMBLE = struct.Struct("<BHH")
+_RECORD_HEADERS = {1: (struct.Struct("<HI"), 1e-3), 2: (struct.Struct("<HQ"), 1e-6)}
+_TYPE_CODES = frozenset("bBhHiIqQfd?")
+_CRC = struct.Struct("<I")
+
+
+@dataclass(frozen=True)
+class UsdEvent:
+    """The records of one event type: stamps [s] of the Crazyflie's clock and one column per variable."""
+
+    name: str
+    variables: tuple[str, ...]
+    stamps_s: np.ndarray
+    values: np.ndarray
+
+    def has(self, *names: str) -> bool:
+        """Whether every one of ``names`` is logged by this event."""
+        return all(name in self.variables for name in names)
+
+    def column(self, name: str) -> np.ndarray:
+        """One variable's values, as floats."""
+        return self.values[:, self.variables.index(name)]
+
+
+@dataclass
+class UsdLog:
+    """A decoded usd log: its events by name, and what the user should hear about the file."""
+
+    version: int
+    events: dict[str, UsdEvent]
+    warnings: list[str] = field(default_factory=list)
+
+    def event_with(self, *names: str) -> UsdEvent | None:
+        """The event with records that logs all of ``names``, if any."""
+        for event in self.events.values():
+            if event.has(*names) and event.stamps_s.size:
+                return event
+        return None
+
+
+class _Cursor:
+    """Reads the header, naming the byte offset of whatever does not parse."""
+
+    def __init__(self, data: bytes, path: Path):
+        self.data, self.path, self.offset = data, path, 0
+
+    def fail(self, what: str) -> ConversionError:
+        return ConversionError(f"{self.path}: byte {self.offset}: {what}: not a readable Crazyflie usd log")
+
+    def unpack(self, layout: struct.Struct, what: str) -> tuple[int, ...]:
+        if self.offset + layout.size > len(self.data):
+            raise self.fail(f"the file ends inside the header ({what})")
+        values = layout.unpack_from(self.data, self.offset)
+        self.offset += layout.size
+        return values
+
+    def name(self, what: str) -> str:
+        end = self.data.find(b"\0", self.offset)
+        if end < 0:
+            raise self.fail(f"the file ends inside the header ({what} has no terminating NUL)")
+        try:
+            text = self.data[self.offset : end].decode("ascii")
+        except UnicodeDecodeError:
+            raise self.fail(f"{what} is not ASCII text") from None
+        self.offset = end + 1
+        return text
+
+
+_U16 = struct.Struct("<H")
+
+
+def read_usd_log(path: str | Path) -> UsdLog:
+    """Decode a usd log file; a damaged header is an error, a damaged or missing tail a warning."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise ConversionError(f"{path}: cannot read: {error.strerror or error}") from None
+    cursor = _Cursor(data, path)
+    magic, version, n_event_types = cursor.unpack(_PREAMBLE, "magic, version, event count")
+    if magic != USD_MAGIC:
+        raise cursor.fail(f"magic byte 0x{magic:02X}, expected 0x{USD_MAGIC:02X}")
+    if version not in _RECORD_HEADERS:
+        raise cursor.fail(f"format version {version}; versions 1 and 2 are known")
+    layouts: dict[int, tuple[str, tuple[str, ...], struct.Struct]] = {}
+    for _ in range(n_event_types):
+        (event_id,) = cursor.unpack(_U16, "event id")
+        event_name = cursor.name("an event name")
+        (n_variables,) = cursor.unpack(_U16, f"variable count of event {event_name!r}")
+        names, codes = [], ""
+        for _ in range(n_variables):
+            declared = cursor.name(f"a variable of event {event_name!r}")
+            if (
+                len(declared) < 4
+                or declared[-3] != "("
+                or declared[-1] != ")"
+                or declared[-2] not in _TYPE_CODES
+            ):
+                raise cursor.fail(
+                    f"variable {declared!r} of event {event_name!r} is not 'name(T)' with a C type T"
+                )
+            names.append(declared[:-3])
+            codes += declared[-2]
+        layouts[event_id] = (event_name, tuple(names), struct.Struct("<" + codes))
+
+    warnings: list[str] = []
+    whole = (
+        len(data) >= cursor.offset + _CRC.size
+        and zlib.crc32(data[: -_CRC.size]) == _CRC.unpack_from(data, len(data) - _CRC.size)[0]
+    )
+    end = len(data) - _CRC.size if whole else len(data)
+    record_header, stamp_unit = _RECORD_HEADERS[version]
+    rows: dict[int, list[tuple[float, ...]]] = {event_id: [] for event_id in layouts}
+    stamps: dict[int, list[float]] = {event_id: [] for event_id in layouts}
+    offset = cursor.offset
+    while offset + record_header.size <= end:
+        event_id, stamp = record_header.unpack_from(data, offset)
+        if event_id not in layouts:
+            warnings.append(
+                f"record at byte {offset} names event id {event_id}, which the header does not declare: "
+                f"the {end - offset} bytes from there are not read (the file is damaged)"
+            )
+            break
+        body = layouts[event_id][2]
+        if offset + record_header.size + body.size > end:
+            break
+        stamps[event_id].append(stamp * stamp_unit)
+        rows[event_id].append(body.unpack_from(data, offset + record_header.size))
+        offset += record_header.size + body.size
+    if not whole:
+        left = end - offset
+        warnings.append(
+            "truncated or damaged: the CRC-32 at the end does not match the content"
+            + (f"; the last {left} bytes (a partial record) are not read" if left > 0 else "")
+        )
+    events = {
+        name: UsdEvent(
+            name,
+            variables,
+            np.asarray(stamps[event_id], dtype=float),
+            np.asarray(rows[event_id], dtype=float).reshape(len(rows[event_id]), len(variables)),
+        )
+        for event_id, (name, variables, _) in layouts.items()
+    }
+    return UsdLog(version, events, warnings)
+
+
+def _pitch_from_specific_force(accel_W: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ZYX pitch, and the roll implied the same way, from the world specific force and the yaw.
+
+    With R = Rz(yaw) Ry(pitch) Rx(roll), Rz(-yaw) R e_z = (sin pitch cos roll, -sin roll, cos pitch cos roll).
+    """
+    specific = accel_W + np.array([0.0, 0.0, CRAZYFLIE_GRAVITY_M_S2])
+    c, s = np.cos(yaw), np.sin(yaw)
+    forward = c * specific[:, 0] + s * specific[:, 1]
+    left = -s * specific[:, 0] + c * specific[:, 1]
+    pitch = np.arctan2(forward, specific[:, 2])
+    implied_roll = np.arctan2(-left, np.hypot(forward, specific[:, 2]))
+    return pitch, implied_roll
+
+
+def _columns(event: UsdEvent, names: Sequence[str]) -> np.ndarray:
+    return np.column_stack([event.column(name) for name in names])
+
+
+def convert_crazyflie_usd(
+    path: str | Path, airframe: Airframe, rotor_channels: str | None = None
+) -> tuple[FlightLog, list[str]]:
+    """Convert a usd log; returns the log and warnings for the user."""
+    path = Path(path)
+    usd = read_usd_log(path)
+    warnings = list(usd.warnings)
+    position_names = [f"stateEstimate.{axis}" for axis in "xyz"]
+    motion = usd.event_with(*position_names)
+    if motion is None:
+        logged = sorted(
+            {name for event in usd.events.values() if event.stamps_s.size for name in event.variables}
+        )
+        raise ConversionError(
+            f"{path}: no records with stateEstimate.x, .y and .z (the position is the time base); "
+            f"logged: {', '.join(logged) or 'nothing'}"
+        )
+    n_motors = 4
+    motor_names = [f"motor.m{k}" for k in range(1, n_motors + 1)]
+    pwm_names = [f"pwm.m{k}_pwm" for k in range(1, n_motors + 1)]
+    motors = usd.event_with(*motor_names)
+    label = "motor.m1..m4 (motor power command before battery compensation) / 65535"
+    if motors is None:
+        motors = usd.event_with(*pwm_names)
+        motor_names, label = pwm_names, "pwm.m1_pwm..m4_pwm (duty cycle after battery compensation) / 65535"
+        if motors is None:
+            raise ConversionError(
+                f"{path}: no motor commands (motor.m1..m4 or pwm.m1_pwm..m4_pwm): a rotor group is needed; "
+                "CrazyPAD's controller_data files log the controller, its motor_data files the motors"
+            )
+        warnings.append("motor.m1..m4 not logged: u_k from pwm.m*_pwm, which rises as the battery drains")
+    t, rows, dropped = sort_unique(motion.stamps_s, np.arange(motion.stamps_s.size, dtype=float))
+    if dropped:
+        warnings.append(f"{dropped} records with repeated stamps dropped")
+    index = rows.astype(int)
+    event = UsdEvent(motion.name, motion.variables, t, motion.values[index])
+    if motors is motion:
+        motors = event
+    builder = LogBuilder(t, f"the stamps of the {event.name!r} records (stateEstimate.x/y/z)")
+    taken = ["x,y,z: stateEstimate.x/y/z [m], Crazyflie world frame (x forward at start-up, y left, z up)"]
+    builder.put(["x", "y", "z"], _columns(event, position_names))
+    velocity_names = [f"stateEstimate.v{axis}" for axis in "xyz"]
+    if event.has(*velocity_names):
+        builder.put(["vx", "vy", "vz"], _columns(event, velocity_names))
+        taken.append("vx,vy,vz: stateEstimate.vx/vy/vz [m/s], world")
+    accel_names = [f"stateEstimate.a{axis}" for axis in "xyz"]
+    accel_W = _columns(event, accel_names) * CRAZYFLIE_GRAVITY_M_S2 if event.has(*accel_names) else None
+    if accel_W is not None:
+        builder.put(["ax", "ay", "az"], accel_W)
+        taken.append(
+            f"ax,ay,az: stateEstimate.ax/ay/az [g, world, gravity removed] x {CRAZYFLIE_GRAVITY_M_S2}"
+        )
+
+    if not event.has("stateEstimate.roll"):
+        raise ConversionError(
+            f"{path}: no stateEstimate.roll in the {event.name!r} records: "
+            "the attitude is needed (log it with the position)"
+        )
+    roll = np.radians(event.column("stateEstimate.roll"))
+    if event.has("stateEstimate.yaw"):
+        yaw = np.radians(event.column("stateEstimate.yaw"))
+        taken.append("roll,yaw: stateEstimate.roll/yaw [deg]")
+    else:
+        yaw = np.zeros_like(roll)
+        taken.append(
+            "roll: stateEstimate.roll [deg]; yaw NOT LOGGED, taken as 0: the Crazyflie holds the heading "
+            "it started with (CrazyPAD flights that log yaw stay within "
+            f"{HELD_HEADING_STD_DEG:g} deg std of it)"
+        )
+        warnings.append("yaw is not logged: taken as 0, the heading the Crazyflie holds from take-off")
+    if event.has("stateEstimate.pitch"):
+        pitch = -np.radians(event.column("stateEstimate.pitch"))
+        taken.append("pitch: -stateEstimate.pitch [deg] (legacy sign)")
+    elif accel_W is not None:
+        pitch, implied_roll = _pitch_from_specific_force(accel_W, yaw)
+        rms = float(np.degrees(np.sqrt(np.mean((implied_roll - roll) ** 2))))
+        taken.append(
+            "pitch NOT LOGGED, derived: atan2(f_x', f_z') of the specific force f = a + g e_z rotated by "
+            "-yaw into the heading frame (rotor drag and accelerometer misalignment neglected); "
+            f"the roll derived the same way differs from the logged roll by {rms:.2f} deg RMS"
+        )
+        warnings.append(
+            f"pitch is not logged: derived from the acceleration and yaw (roll check: {rms:.2f} deg RMS)"
+        )
+    else:
+        raise ConversionError(
+            f"{path}: stateEstimate.pitch is not logged and cannot be derived without "
+            "stateEstimate.ax/ay/az: log one of them"
+        )
+    builder.put(["roll", "pitch", "yaw"], np.column_stack([roll, pitch, yaw]))
+
+    try:
+        channels, channel_note = resolve_rotor_channels(
+            airframe, rotor_channels, None, n_motors, channel_names=motor_names, layouts=(CRAZYFLIE_LAYOUT,)
+        )
+    except RotorChannelError as error:
+        raise ConversionError(f"{path}: {error}") from None
+    warning = builder.put_actuators(
+        motors.stamps_s,
+        _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE,
+        channels,
+        channel_note,
+        "normalized",
+        airframe,
+        label,
+    )
+    if warning:
+        warnings.append(warning)
+    for name, scale in (("pm.vbatMV", 1e-3), ("pm.vbat", 1.0)):
+        battery = usd.event_with(name)
+        if battery is not None:
+            builder.put_stream(["battery_v"], battery.stamps_s, battery.column(name) * scale, "linear", name)
+            taken.append(f"battery_v: {name} [V]")
+            break
+    first = {
+        "source": "crazyflie_usd",
+        "converted_from": f"{path.name} (Bitcraze usd log version {usd.version})",
+        "airframe": airframe.name,
+        "frames": "Crazyflie world (z up) and body (x forward, y left, z up) are ENU/FLU-like: no change",
+        "derived": "; ".join(taken),
+    }
+    return builder.build(first), warnings

@@ -1,0 +1,188 @@
+"""Bitcraze usd logs: the reader on files the tests build byte by byte, and every real CrazyPAD flight."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from multirotor_ros.io.convert import convert, detect_format
+from multirotor_ros.io.crazyflie_usd import read_usd_log
+from multirotor_ros.io.log_builder import ConversionError
+from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.model.rotation import euler_to_matrix
+
+CRAZYPAD = Path(__file__).resolve().parents[2] / "shared" / "data" / "crazypad"
+if not CRAZYPAD.is_dir():  # CI clones main with shared/ beside it
+    CRAZYPAD = Path("/work/shared/data/crazypad")
+MOTOR_FLIGHTS = sorted(CRAZYPAD.glob("motor_data/*/E*"))
+needs_crazypad = pytest.mark.skipif(
+    not MOTOR_FLIGHTS, reason="shared/data/crazypad is not beside the repository"
+)
+
+FIXED_FREQUENCY = 0xFFFF
+STATE_VARIABLES = [
+    ("motor.m1", "I"),
+    ("motor.m2", "I"),
+    ("motor.m3", "I"),
+    ("motor.m4", "I"),
+    ("pm.vbatMV", "H"),
+    *[
+        (f"stateEstimate.{name}", "f")
+        for name in ("x", "y", "z", "vx", "vy", "vz", "ax", "ay", "az", "roll", "yaw")
+    ],
+]
+
+
+def usd_bytes(
+    events: dict[int, tuple[str, list[tuple[str, str]]]],
+    records: list[tuple[int, int, tuple[float, ...]]],
+    version: int = 2,
+) -> bytes:
+    """A usd log as the firmware writes it: header, records (id, stamp in the version's unit, values), CRC."""
+    out = bytearray(struct.pack("<BHH", 0xBC, version, len(events)))
+    for event_id, (name, variables) in events.items():
+        out += struct.pack("<H", event_id) + name.encode() + b"\0" + struct.pack("<H", len(variables))
+        for variable, code in variables:
+            out += f"{variable}({code})".encode() + b"\0"
+    for event_id, stamp, values in records:
+        codes = "".join(code for _, code in events[event_id][1])
+        out += struct.pack("<HQ" if version == 2 else "<HI", event_id, stamp)
+        out += struct.pack("<" + codes, *values)
+    return bytes(out + struct.pack("<I", zlib.crc32(out)))
+
+
+def hover_records(n: int = 300, pitch_deg: float = 2.0, roll_deg: float = -1.5, yaw_deg: float = 30.0):
+    """A vehicle tilted by (roll, pitch, yaw), accelerating as its thrust says: a + g e_z along R e_z."""
+    rotation = euler_to_matrix(np.radians([[roll_deg, pitch_deg, yaw_deg]]))[0]
+    specific_force = 9.81 * rotation[:, 2] / rotation[2, 2]
+    accel_g = (specific_force - [0.0, 0.0, 9.81]) / 9.81
+    records = []
+    for i in range(n):
+        values = (30000, 31000, 32000, 33000, 3900 - i, 0.1 * i / n, 0.0, 0.5, 0.1, 0.0, 0.0, *accel_g)
+        records.append((FIXED_FREQUENCY, 1_000_000 + 10_000 * i, (*values, roll_deg, yaw_deg)))
+    return records
+
+
+@pytest.fixture(scope="module")
+def crazyflie():
+    return load_airframe("crazyflie_2_1")
+
+
+def test_a_built_log_decodes_and_converts_with_pitch_derived_from_the_acceleration(
+    crazyflie, tmp_path
+) -> None:
+    path = tmp_path / "log00"
+    events = {
+        FIXED_FREQUENCY: ("fixedFrequency", STATE_VARIABLES),
+        12: ("activeMarkerModeChanged", [("mode", "B")]),
+    }
+    path.write_bytes(usd_bytes(events, hover_records()))
+    assert detect_format(path) == "crazyflie-usd"
+    usd = read_usd_log(path)
+    assert usd.version == 2 and usd.warnings == []
+    assert usd.events["activeMarkerModeChanged"].stamps_s.size == 0
+    conversion = convert(path, crazyflie)
+    log = conversion.log
+    assert log.t[0] == 0.0 and log.t[-1] == pytest.approx(2.99)
+    np.testing.assert_allclose(np.degrees(log.columns["pitch"]), 2.0, atol=1e-4)
+    np.testing.assert_allclose(np.degrees(log.columns["roll"]), -1.5, atol=1e-5)
+    np.testing.assert_allclose(log.columns["u_3"], 32000 / 65535)
+    np.testing.assert_allclose(log.columns["battery_v"][:2], [3.9, 3.899])
+    assert log.metadata["actuator_unit"] == "normalized"
+    assert "pitch NOT LOGGED, derived" in log.metadata["derived"]
+    assert "differs from the logged roll by 0.00 deg RMS" in log.metadata["derived"]
+    assert log.metadata["rotor_channels"].startswith(
+        "1,2,3,4 (motor.m1, motor.m2, motor.m3, motor.m4); Crazyflie"
+    )
+    assert any("pitch is not logged" in warning for warning in conversion.warnings)
+
+
+def test_a_logged_pitch_has_its_legacy_sign_turned_and_version_1_stamps_are_milliseconds(crazyflie, tmp_path):
+    variables = [*STATE_VARIABLES, ("stateEstimate.pitch", "f")]
+    records = [
+        (FIXED_FREQUENCY, 500 + 10 * i, (*values, 4.0)) for i, (_, _, values) in enumerate(hover_records(50))
+    ]
+    path = tmp_path / "log01"
+    path.write_bytes(usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", variables)}, records, version=1))
+    log = convert(path, crazyflie, fmt="crazyflie-usd").log
+    np.testing.assert_allclose(np.degrees(log.columns["pitch"]), -4.0, rtol=1e-6)
+    assert log.t[1] == pytest.approx(0.01)
+
+
+def test_a_log_cut_short_is_read_up_to_its_last_whole_record_and_says_so(crazyflie, tmp_path) -> None:
+    whole = usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", STATE_VARIABLES)}, hover_records(100))
+    path = tmp_path / "cut"
+    path.write_bytes(whole[:-40])
+    usd = read_usd_log(path)
+    assert usd.events["fixedFrequency"].stamps_s.size == 99
+    assert usd.warnings == [
+        "truncated or damaged: the CRC-32 at the end does not match the content; "
+        "the last 36 bytes (a partial record) are not read"
+    ]
+    conversion = convert(path, crazyflie)
+    assert len(conversion.log) == 99 and conversion.warnings[0].startswith("truncated or damaged")
+
+
+def test_damaged_headers_and_records_are_named_by_byte(crazyflie, tmp_path) -> None:
+    path = tmp_path / "bad"
+    good = usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", STATE_VARIABLES)}, hover_records(10))
+    path.write_bytes(good[:30])
+    with pytest.raises(ConversionError, match=r"bad: byte 24: the file ends inside the header \(a variable"):
+        read_usd_log(path)
+    path.write_bytes(good.replace(b"motor.m2(I)", b"motor.m2(Z)"))
+    with pytest.raises(ConversionError, match=r"variable 'motor.m2\(Z\)' of event 'fixedFrequency' is not"):
+        read_usd_log(path)
+    path.write_bytes(b"\xbc\x07\x00\x00\x00")
+    with pytest.raises(ConversionError, match="byte 5: format version 7; versions 1 and 2 are known"):
+        read_usd_log(path)
+    header_end = good.index(b"yaw(f)\0") + len("yaw(f)\0")
+    record_size = 10 + 4 * 4 + 2 + 11 * 4
+    damaged = bytearray(good)
+    damaged[header_end + 3 * record_size : header_end + 3 * record_size + 2] = b"\x05\x00"
+    path.write_bytes(bytes(damaged))
+    usd = read_usd_log(path)
+    assert usd.events["fixedFrequency"].stamps_s.size == 3
+    assert usd.warnings[0] == (
+        f"record at byte {header_end + 3 * record_size} names event id 5, which the header does not declare: "
+        f"the {len(good) - header_end - 3 * record_size} bytes from there are not read (the file is damaged)"
+    )
+
+
+def test_logs_without_position_attitude_or_motors_say_what_is_missing(crazyflie, tmp_path) -> None:
+    path = tmp_path / "log"
+    no_motors = [(name, code) for name, code in STATE_VARIABLES if not name.startswith("motor.")]
+    records = [(FIXED_FREQUENCY, stamp, values[4:]) for _, stamp, values in hover_records(20)]
+    path.write_bytes(usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", no_motors)}, records))
+    with pytest.raises(ConversionError, match=r"no motor commands \(motor.m1..m4 or pwm.m1_pwm..m4_pwm\)"):
+        convert(path, crazyflie)
+    only_motors = STATE_VARIABLES[:4]
+    records = [(FIXED_FREQUENCY, stamp, values[:4]) for _, stamp, values in hover_records(20)]
+    path.write_bytes(usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", only_motors)}, records))
+    with pytest.raises(
+        ConversionError, match=r"no records with stateEstimate.x, .y and .z .*logged: motor.m1, motor.m2"
+    ):
+        convert(path, crazyflie)
+
+
+@needs_crazypad
+def test_every_crazypad_motor_flight_converts_and_its_rotor_commands_hold_the_vehicle_up(crazyflie) -> None:
+    """The firmware's thrust map (this airframe's) on the logged commands balances 29-36 g in hover."""
+    assert len(MOTOR_FLIGHTS) >= 30
+    for path in MOTOR_FLIGHTS:
+        log = convert(path, crazyflie).log
+        hovering = (log.columns["z"] > 0.4) & (np.abs(log.columns["vz"]) < 0.05)
+        omega = np.column_stack([log.columns[f"omega_{k}"] for k in range(1, 5)])[hovering]
+        weight_g = np.median((crazyflie.k_f_N_s2 * omega**2).sum(axis=1)) / 9.81 * 1e3
+        assert 29.0 < weight_g < 36.0, (path, weight_g)
+        assert log.t[-1] > 20.0
+
+
+@needs_crazypad
+def test_a_controller_data_file_is_refused_with_the_reason(crazyflie) -> None:
+    path = next(CRAZYPAD.glob("controller_data/normal_flight/E*"))
+    with pytest.raises(ConversionError, match="controller_data files log the controller"):
+        convert(path, crazyflie)
