@@ -94,7 +94,7 @@ def test_a_built_log_decodes_and_converts_with_pitch_derived_from_the_accelerati
     np.testing.assert_allclose(log.columns["battery_v"][:2], [3.9, 3.899])
     assert log.metadata["actuator_unit"] == "normalized"
     assert "pitch NOT LOGGED, derived" in log.metadata["derived"]
-    assert "differs from the logged roll by 0.00 deg RMS" in log.metadata["derived"]
+    assert "differs from the logged roll by 0.00 deg RMS; left empty at 0 samples" in log.metadata["derived"]
     assert log.metadata["rotor_channels"].startswith(
         "1,2,3,4 (motor.m1, motor.m2, motor.m3, motor.m4); Crazyflie"
     )

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         written = report.write(args.out, plots=not args.no_plots)
     except OSError as error:
         raise CommandError(f"{args.out}: cannot write: {error}") from None
-    print(f"missing effect: {', '.join(report.missing_effects) or 'none'}")
+    print(f"missing effect: {report.verdict()}")
     for name, value in report.parameters.items():
         sd = report.std.get(name)
         print(f"  {name} = {value:.6g}" + ("" if sd is None else f" +/- {sd:.2g}"))

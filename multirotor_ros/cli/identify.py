@@ -23,15 +23,21 @@ not identifiable, with the reason, instead of a number. Missing motion groups ar
 model's output passes through the same filter); samples without data, across gaps or on the ground are
 left out and counted in a warning.
 
-Writes DIR/identified.json (parameters, std, mse_before, mse_after per axis, validation, warnings),
-DIR/<airframe>_identified.yaml (loadable airframe with the fitted values) and PNG plots of measured
-against modelled acceleration and position.
+Several --log options fit several flights of the vehicle together (each keeps its own gaps and
+accelerometer bias). From the same flights comes the vehicle's rotor balance: the mean thrust each
+rotor gives in steady flight and its flight-to-flight scatter, the weight carried, the centre of
+gravity and the yaw balance. `multirotor discrepancy` measures a suspect flight's rotors against it.
+
+Writes DIR/identified.json (parameters, std, mse_before, mse_after per axis, validation, rotor balance,
+warnings), DIR/<airframe>_identified.yaml (loadable airframe with the fitted values and the
+rotor_balance section) and PNG plots of measured against modelled acceleration and position.
 """
 
 EPILOG = """\
 examples:
   multirotor identify --airframe x8_octorotor --log flight.csv --effects quadratic_drag,rotor_drag --out fit
   multirotor identify --airframe x8_octorotor --log id.csv --validation-log val.csv --effects none --out fit
+  multirotor identify --airframe crazyflie_2_1 --log n1.csv --log n2.csv --log n3.csv --effects none --out cf
 """
 
 
@@ -41,7 +47,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.epilog = EPILOG
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--airframe", required=True, help="airframe config name or YAML path")
-    parser.add_argument("--log", required=True, type=Path, help="identification flight-log CSV")
+    parser.add_argument(
+        "--log",
+        required=True,
+        type=Path,
+        action="append",
+        help="identification flight-log CSV; repeat for several flights of the vehicle, fitted together "
+        "(their rotor balance is the baseline the discrepancy workflow measures a suspect flight against)",
+    )
     parser.add_argument(
         "--effects",
         required=True,

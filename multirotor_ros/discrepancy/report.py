@@ -142,7 +142,7 @@ def render_html(report: DiscrepancyReport, images: list[Path]) -> str:
     e = html.escape
     document = report.to_json()
     verdict = (
-        f"Missing effect: <b>{e(', '.join(report.missing_effects))}</b>"
+        f"Missing effect: <b>{e(report.verdict())}</b>"
         if report.missing_effects
         else "Missing effect: <b>none</b> (no candidate explains a significant part of the disagreement)"
     )

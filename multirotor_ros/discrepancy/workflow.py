@@ -35,7 +35,14 @@ quoted here):
 parameters not identifiable, e.g. drag in a hover), that the airframe cannot have (``not_applicable``) or
 that need what the log lacks (``log_needs``) are listed with the reason, and so are effects with one
 parameter per rotor (``rotor_effectiveness``): the translational motion shows only the rotors' combined
-thrust, and telling the rotors apart needs the torque balance, which this workflow does not fit.
+thrust.
+
+6. The rotors' balance: when the airframe carries a ``rotor_balance`` (``multirotor identify`` writes it
+   from the vehicle's normal flights), the log's mean rotor commands in steady flight are compared with
+   it (:mod:`multirotor_ros.ident.rotor_balance`): a weakened rotor (``rotor_effectiveness``, e_k per
+   rotor with standard deviations), a payload (``mass_offset`` with ``cg_offset``) or nothing. What it
+   names joins the translational answer; where a weakened rotor and a payload both explain the commands,
+   ``ambiguous_with`` says so.
 """
 
 from __future__ import annotations
@@ -56,8 +63,15 @@ from multirotor_ros.ident.fit import FitResult, Fitter, acceleration_residual, f
 from multirotor_ros.ident.metrics import horizon_position_error, model_acceleration, per_axis
 from multirotor_ros.ident.parameters import ParameterRef
 from multirotor_ros.ident.regressors import parameter_value
+from multirotor_ros.ident.rotor_balance import (
+    RotorBalanceError,
+    RotorBaseline,
+    RotorDiagnosis,
+    diagnose,
+    flight_balance,
+)
 from multirotor_ros.ident.samples import FlightSamples, NotEnoughData, load_samples
-from multirotor_ros.io.flight_log import FlightLog
+from multirotor_ros.io.flight_log import FlightLog, read_flight_log
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.effects import EFFECTS, TRANSLATIONAL_EFFECTS, Effect, effect_class, make_effect
 from multirotor_ros.model.model import Model
@@ -156,6 +170,8 @@ class DiscrepancyReport:
     final_model: Model
     residual_before: FloatArray
     residual_after: FloatArray
+    ambiguous_with: list[str] = field(default_factory=list)
+    rotor_balance: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """report.json as a dict: interfaces.md's keys, then what this implementation adds."""
@@ -171,6 +187,7 @@ class DiscrepancyReport:
             "parameters": _json_parameters(self.parameters),
             "mse_after": self.mse_after,
             "missing_effects": self.missing_effects,
+            "ambiguous_with": self.ambiguous_with,
             "std": self.std,
             "position_mse_before": self.position_mse_before,
             "position_mse_after": self.position_mse_after,
@@ -181,7 +198,16 @@ class DiscrepancyReport:
             "notes": self.notes,
             "warnings": self.warnings,
             "timings_s": self.timings_s,
+            "rotor_balance": self.rotor_balance,
         }
+
+    def verdict(self) -> str:
+        """The named effect(s) in words, with the look-alikes this log cannot tell from them."""
+        if not self.ambiguous_with:
+            return " + ".join(self.missing_effects) or "none"
+        first, *also = self.missing_effects
+        verdict = f"{first} or {' or '.join(self.ambiguous_with)}: this log cannot tell them apart"
+        return verdict + (f"; and {' + '.join(also)}" if also else "")
 
     def write(self, out_dir: str | Path, plots: bool = True) -> list[Path]:
         """report.json, the PNG plots and report.html in ``out_dir`` (created); returns the files."""
@@ -488,9 +514,17 @@ def find_discrepancy(
         airframe = load_airframe(airframe)
     if max_effects < 1:
         raise ValueError(f"max_effects must be >= 1, got {max_effects}")
-    samples = load_samples(log, airframe, settings=settings.fit)
+    flight = log if isinstance(log, FlightLog) else read_flight_log(log)
+    samples = load_samples(flight, airframe, settings=settings.fit)
     if accelerometer_bias:
         samples.estimate_accelerometer_bias(airframe.mass_kg)
+    rotor_stage = _rotor_balance_stage(airframe, flight)
+    found = rotor_stage.baseline_effects()
+    if found:
+        baseline_effects = [
+            *(airframe.effect_specs() if baseline_effects is None else baseline_effects),
+            *found,
+        ]
     lap("load")
     workflow = _baseline_workflow(samples, airframe, baseline_effects, settings, progress)
     disagreement = _where_the_model_disagrees(workflow)
@@ -500,6 +534,7 @@ def find_discrepancy(
     lap("candidates")
     final = _fit_named(workflow, naming, disagreement)
     report = _report(workflow, disagreement, naming, final)
+    _add_rotor_balance(report, rotor_stage)
     lap("total")
     report.timings_s = timings
     return report
@@ -794,10 +829,6 @@ def _report(
     if naming.not_testable:
         reasons = "; ".join(f"{e} ({why})" for e, why in naming.not_testable.items())
         explanation.append(f"Not testable on this log: {reasons}.")
-    rotational = ", ".join(e for e, cls in EFFECTS.items() if cls.rotational)
-    explanation.append(
-        f"Rotational effects ({rotational}) are not candidates: the workflow compares translational motion."
-    )
     metric = (
         "mse_before / mse_after: mean square error per world axis of the acceleration [(m/s^2)^2], measured "
         "minus modelled over every usable sample of the log, the model driven by the log's attitude, rotor "
@@ -836,6 +867,68 @@ def _report(
         residual_before=disagreement.residual,
         residual_after=final.residual,
     )
+
+
+@dataclass
+class RotorBalanceStage:
+    """Stage 6's outcome before the translational stages: what to add to the baseline, what to report."""
+
+    diagnosis: RotorDiagnosis | None
+    explanation: str
+    warnings: list[str]
+
+    def baseline_effects(self) -> list[dict[str, Any]]:
+        """The named finding as effect specs, so that the translational comparison starts from it."""
+        if self.diagnosis is None or self.diagnosis.named == "none":
+            return []
+        fitted = self.diagnosis.explanations[self.diagnosis.named].parameters
+        if self.diagnosis.named == "rotor_effectiveness":
+            return [{"id": "rotor_effectiveness", **fitted}]
+        return [
+            {"id": "mass_offset", "dm_kg": fitted["dm_kg"]},
+            {"id": "cg_offset", "r_x": fitted["r_x"], "r_y": fitted["r_y"]},
+        ]
+
+
+def _rotor_balance_stage(airframe: Airframe, flight: FlightLog) -> RotorBalanceStage:
+    """The log's rotor balance against the airframe's, if the airframe has one."""
+    baseline = RotorBaseline.of_airframe(airframe)
+    if baseline is None:
+        return RotorBalanceStage(
+            None,
+            "The rotors' balance (rotor_effectiveness per rotor, cg_offset) is not compared: "
+            f"{airframe.name} has no rotor_balance; `multirotor identify` with the vehicle's normal flights "
+            "(--log repeated) writes an airframe that has one.",
+            [],
+        )
+    try:
+        diagnosis = diagnose(airframe, baseline, flight_balance(flight, airframe))
+    except RotorBalanceError as error:
+        return RotorBalanceStage(None, f"The rotors' balance is not compared: {error}.", [str(error)])
+    line = f"Compared with {airframe.name}'s rotor balance: {diagnosis.headline()}."
+    if diagnosis.named != "none":
+        line += " The translational comparison above starts from a baseline with this finding in it."
+    return RotorBalanceStage(diagnosis, line, [])
+
+
+def _add_rotor_balance(report: DiscrepancyReport, stage: RotorBalanceStage) -> None:
+    """What the rotor balance named joins the report's answer."""
+    report.explanation.append(stage.explanation)
+    report.warnings += stage.warnings
+    diagnosis = stage.diagnosis
+    if diagnosis is None:
+        return
+    report.rotor_balance = diagnosis.to_json()
+    report.notes += diagnosis.notes
+    if diagnosis.named == "none":
+        return
+    effects = diagnosis.named.split("+")
+    fitted = diagnosis.explanations[diagnosis.named]
+    report.missing_effect = effects[0]
+    report.missing_effects = effects + [e for e in report.missing_effects if e not in effects]
+    report.parameters = {**fitted.parameters, **report.parameters}
+    report.std = {**fitted.std, **report.std}
+    report.ambiguous_with += diagnosis.ambiguous_with
 
 
 # ----------------------------------------------------------------------------------------------

@@ -11,9 +11,16 @@ the data do not support), and the acceleration error per axis before (the model 
 and after the fit, on the identification log and, if given, on a separate validation log (seed 1 §III-C
 uses one experiment to identify and another to validate).
 
+Several logs of the vehicle (``--log`` repeated) are fitted together
+(:func:`~multirotor_ros.ident.samples.concatenate_samples`: each keeps its segments and accelerometer bias).
+From the same logs comes the vehicle's rotor balance (:mod:`multirotor_ros.ident.rotor_balance`): what
+each rotor carries in steady flight, the weight, the centre of gravity and the yaw balance, with the
+flight-to-flight scatter that the discrepancy workflow later measures a suspect flight against.
+
 Writes (:meth:`IdentificationResult.write`): ``identified.json``, ``<airframe>_identified.yaml`` (an
-airframe YAML with the fitted values that :func:`~multirotor_ros.model.airframe.load_airframe` reads) and
-PNG plots of measured against modelled acceleration and position.
+airframe YAML with the fitted values and the ``rotor_balance`` section, which
+:func:`~multirotor_ros.model.airframe.load_airframe` reads) and PNG plots of measured against modelled
+acceleration and position.
 """
 
 from __future__ import annotations
@@ -32,8 +39,15 @@ import yaml
 from multirotor_ros.ident.fit import FitResult, acceleration_residual, fit_parameters, nuisance_estimate
 from multirotor_ros.ident.metrics import AXES, horizon_position_error, model_acceleration, per_axis
 from multirotor_ros.ident.parameters import AIRFRAME, K_F, FittedParameter, ParameterRef, parameter_facts
-from multirotor_ros.ident.samples import FlightSamples, load_samples
-from multirotor_ros.io.flight_log import FlightLog
+from multirotor_ros.ident.rotor_balance import (
+    BaselineState,
+    RotorBalanceError,
+    RotorBaseline,
+    flight_balance,
+    rotor_baseline,
+)
+from multirotor_ros.ident.samples import FlightSamples, concatenate_samples, load_samples
+from multirotor_ros.io.flight_log import FlightLog, read_flight_log
 from multirotor_ros.model.airframe import Airframe, load_airframe
 from multirotor_ros.model.effects import EFFECTS, effect_class, make_effect
 from multirotor_ros.model.model import Model
@@ -76,6 +90,7 @@ class IdentificationResult:
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     nuisance: dict[str, float] = field(default_factory=dict)
+    rotor_balance: RotorBaseline | None = None
 
     @property
     def mse_before(self) -> dict[str, float]:
@@ -117,8 +132,20 @@ class IdentificationResult:
             "position_mse_before": self.identification.position_mse_before,
             "position_mse_after": self.identification.position_mse_after,
             "validation": None if self.validation is None else self.validation.to_json(),
+            "rotor_balance": self._rotor_balance_json(),
             "warnings": self.warnings,
             "notes": self.notes,
+        }
+
+    def _rotor_balance_json(self) -> dict[str, Any] | None:
+        if self.rotor_balance is None:
+            return None
+        state = BaselineState.of(self.model_after.airframe, self.rotor_balance)
+        return {
+            **self.rotor_balance.to_section(),
+            "weight_carried_kg": state.mass_kg,
+            "cg_offset_m": {"r_x": state.cg_m[0], "r_y": state.cg_m[1]},
+            "cw_over_ccw_drag_ratio": state.cw_drag_ratio,
         }
 
     def summary(self) -> str:
@@ -133,6 +160,16 @@ class IdentificationResult:
             else:
                 sd = self.std.get(name)
                 lines.append(f"  {name:16s} {value:.6g}" + ("" if sd is None else f" +/- {sd:.2g}"))
+        balance = self._rotor_balance_json()
+        if balance is not None:
+            thrusts = ", ".join(f"{f * 1e3:.2f}" for f in balance["thrust_N"])
+            lines.append(
+                f"  rotor balance over {balance['flights']} flight(s): rotor thrusts [mN] {thrusts}; weight "
+                f"carried {balance['weight_carried_kg'] * 1e3:.1f} g; centre of gravity "
+                f"({balance['cg_offset_m']['r_x'] * 1e3:+.2f}, "
+                f"{balance['cg_offset_m']['r_y'] * 1e3:+.2f}) mm; "
+                f"cw/ccw drag ratio {balance['cw_over_ccw_drag_ratio']:.3f}"
+            )
         before = ", ".join(f"{a} {self.mse_before[a]:.4g}" for a in AXES)
         after = ", ".join(f"{a} {self.mse_after[a]:.4g}" for a in AXES)
         lines.append(f"  acceleration mse [(m/s^2)^2] before: {before}; after: {after}")
@@ -164,6 +201,8 @@ class IdentificationResult:
                     values[name] = int(round(value))
             effects.append({"id": effect.id, **values})
         document["effects"] = effects
+        if self.rotor_balance is not None:
+            document["rotor_balance"] = self.rotor_balance.to_section()
         return document
 
     def write(self, out_dir: str | Path, plots: bool = True) -> list[Path]:
@@ -291,7 +330,7 @@ def _log_fit(samples: FlightSamples, before: Model, after: Model) -> LogFit:
 
 def identify(
     airframe: Airframe | str | Path,
-    log: FlightLog | str | Path,
+    log: FlightLog | str | Path | Sequence[FlightLog | str | Path],
     effects: Sequence[str],
     validation_log: FlightLog | str | Path | None = None,
     progress: Progress | None = None,
@@ -299,6 +338,8 @@ def identify(
     accelerometer_bias: bool = True,
 ) -> IdentificationResult:
     """Fit k_f (unless ``fit_k_f`` is False) and the parameters of ``effects`` to ``log`` (module docstring).
+
+    ``log``: one log, or several of the same vehicle fitted together.
 
     ``accelerometer_bias``: when the log's accelerations are measured, a constant bias along body x and y
     is fitted alongside as a nuisance (:meth:`FlightSamples.estimate_accelerometer_bias`) and reported.
@@ -320,9 +361,15 @@ def identify(
             f"{', '.join(rotational)}: rotational effects are not identified from translational motion "
             "(their torques need the angular accelerations, which this identifier does not fit)"
         )
-    samples = load_samples(log, airframe)
+    flights = [
+        entry if isinstance(entry, FlightLog) else read_flight_log(entry)
+        for entry in ([log] if isinstance(log, (FlightLog, str, Path)) else log)
+    ]
+    parts = [load_samples(flight, airframe) for flight in flights]
     if accelerometer_bias:
-        samples.estimate_accelerometer_bias(airframe.mass_kg)
+        for part in parts:
+            part.estimate_accelerometer_bias(airframe.mass_kg)
+    samples = concatenate_samples(parts)
     if progress is not None:
         progress(f"{samples.source}: {np.count_nonzero(samples.valid)} usable samples of {samples.t.size}")
     configured = {spec["id"]: spec for spec in airframe.effect_specs()}
@@ -371,6 +418,8 @@ def identify(
             "accelerometer bias fitted as a nuisance (body frame): "
             + ", ".join(f"{name} = {value:.4g}" for name, value in nuisance.items())
         )
+    balance, balance_warnings = _rotor_balance(flights, model_after.airframe)
+    warnings += balance_warnings
     validation_samples = None
     validation = None
     if validation_log is not None:
@@ -394,7 +443,18 @@ def identify(
         warnings=warnings,
         notes=list(samples.notes) + fit.notes,
         nuisance=nuisance,
+        rotor_balance=balance,
     )
+
+
+def _rotor_balance(
+    flights: Sequence[FlightLog], airframe: Airframe
+) -> tuple[RotorBaseline | None, list[str]]:
+    """The vehicle's rotor balance over the logs (with the identified k_f), or None and the reason."""
+    try:
+        return rotor_baseline([flight_balance(flight, airframe) for flight in flights])
+    except RotorBalanceError as error:
+        return None, [f"no rotor balance: {error}"]
 
 
 def _nuisance_values(samples: FlightSamples, model: Model) -> dict[str, float]:

@@ -23,7 +23,7 @@ d(omega)/dt = (omega_log - omega)/tau with the logged speed interpolated linearl
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -195,6 +195,77 @@ class FlightSamples:
         self.nuisance = mass_kg * self.R_WB[:, :, :2]
         self.nuisance_names = ("accelerometer_bias_x_m_s2", "accelerometer_bias_y_m_s2")
         self.design_cache.clear()
+
+
+def concatenate_samples(parts: Sequence[FlightSamples]) -> FlightSamples:
+    """Several logs of one vehicle as one set of samples, fitted together.
+
+    Each log keeps its own segments (nothing is bridged or filtered across logs: later logs' times are
+    shifted to follow the previous one after a gap), its own accelerometer bias (the nuisance columns
+    are block-diagonal, named after their log), and its notes and warnings, prefixed by its name.
+    Raises ValueError when the logs' motion was measured differently (one chain serves them all).
+    """
+    if not parts:
+        raise ValueError("no logs to identify from")
+    if len(parts) == 1:
+        return parts[0]
+    first = parts[0]
+    for part in parts[1:]:
+        if part.chain.order != first.chain.order or part.chain.half_window != first.chain.half_window:
+            raise ValueError(
+                f"{part.source}: {part.chain.describe()}, but {first.source}: {first.chain.describe()}; "
+                "logs fitted together need the same acceleration source: identify them separately"
+            )
+    offsets, t_parts, segments = [], [], []
+    start_t, start_row = 0.0, 0
+    for part in parts:
+        gap = 10.0 * part.dt if np.isfinite(part.dt) else 1.0
+        shift = start_t - part.t[0]
+        t_parts.append(part.t + shift)
+        segments += [(a + start_row, b + start_row) for a, b in part.segments]
+        offsets.append(start_row)
+        start_t = t_parts[-1][-1] + gap
+        start_row += part.t.size
+    nuisance, names = None, []
+    if any(part.nuisance is not None for part in parts):
+        widths = [0 if part.nuisance is None else part.nuisance.shape[2] for part in parts]
+        nuisance = np.zeros((start_row, 3, sum(widths)))
+        column = 0
+        for part, offset, width in zip(parts, offsets, widths, strict=True):
+            if part.nuisance is not None:
+                nuisance[offset : offset + part.t.size, :, column : column + width] = part.nuisance
+                names += [f"{name} ({Path(part.source).name})" for name in part.nuisance_names]
+            column += width
+
+    def joined(attribute: str) -> np.ndarray:
+        return np.concatenate([getattr(part, attribute) for part in parts], axis=0)
+
+    def labelled(attribute: str) -> list[str]:
+        return [f"{Path(part.source).name}: {line}" for part in parts for line in getattr(part, attribute)]
+
+    return FlightSamples(
+        t=np.concatenate(t_parts),
+        p_WB_W=joined("p_WB_W"),
+        v_WB_W=joined("v_WB_W"),
+        a_W=joined("a_W"),
+        euler=joined("euler"),
+        R_WB=joined("R_WB"),
+        w_WB_B=joined("w_WB_B"),
+        w_dot_B=joined("w_dot_B"),
+        omega=joined("omega"),
+        valid=joined("valid"),
+        segments=segments,
+        chain=first.chain,
+        rate_chain=first.rate_chain,
+        height_known=all(part.height_known for part in parts),
+        position_measured=all(part.position_measured for part in parts),
+        source=" + ".join(Path(part.source).name for part in parts),
+        notes=labelled("notes"),
+        warnings=labelled("warnings"),
+        nuisance=nuisance,
+        nuisance_names=tuple(names),
+        settings=first.settings,
+    )
 
 
 def lag_filter(

@@ -209,13 +209,16 @@ def _pitch_from_specific_force(accel_W: np.ndarray, yaw: np.ndarray) -> tuple[np
     """ZYX pitch, and the roll implied the same way, from the world specific force and the yaw.
 
     With R = Rz(yaw) Ry(pitch) Rx(roll), Rz(-yaw) R e_z = (sin pitch cos roll, -sin roll, cos pitch cos roll).
+    Where the specific force's upward part is under half of g (free fall, a landing's impact) it does not
+    point along the thrust: NaN there (an empty cell, not measured).
     """
     specific = accel_W + np.array([0.0, 0.0, CRAZYFLIE_GRAVITY_M_S2])
     c, s = np.cos(yaw), np.sin(yaw)
     forward = c * specific[:, 0] + s * specific[:, 1]
     left = -s * specific[:, 0] + c * specific[:, 1]
-    pitch = np.arctan2(forward, specific[:, 2])
-    implied_roll = np.arctan2(-left, np.hypot(forward, specific[:, 2]))
+    along_thrust = specific[:, 2] >= 0.5 * CRAZYFLIE_GRAVITY_M_S2
+    pitch = np.where(along_thrust, np.arctan2(forward, specific[:, 2]), np.nan)
+    implied_roll = np.where(along_thrust, np.arctan2(-left, np.hypot(forward, specific[:, 2])), np.nan)
     return pitch, implied_roll
 
 
@@ -298,11 +301,13 @@ def convert_crazyflie_usd(
         taken.append("pitch: -stateEstimate.pitch [deg] (legacy sign)")
     elif accel_W is not None:
         pitch, implied_roll = _pitch_from_specific_force(accel_W, yaw)
-        rms = float(np.degrees(np.sqrt(np.mean((implied_roll - roll) ** 2))))
+        rms = float(np.degrees(np.sqrt(np.nanmean((implied_roll - roll) ** 2))))
+        unknown = int(np.count_nonzero(np.isnan(pitch)))
         taken.append(
             "pitch NOT LOGGED, derived: atan2(f_x', f_z') of the specific force f = a + g e_z rotated by "
             "-yaw into the heading frame (rotor drag and accelerometer misalignment neglected); "
-            f"the roll derived the same way differs from the logged roll by {rms:.2f} deg RMS"
+            f"the roll derived the same way differs from the logged roll by {rms:.2f} deg RMS; "
+            f"left empty at {unknown} samples where f_z < g/2 (free fall, impacts)"
         )
         warnings.append(
             f"pitch is not logged: derived from the acceleration and yaw (roll check: {rms:.2f} deg RMS)"

@@ -162,10 +162,12 @@ _TOP_LEVEL_KEYS = {
     "effects": "effects",
     "controller": "section",
     "sensors": "section",
+    "rotor_balance": "rotor_balance",
 }
 _REQUIRED_KEYS = ("mass_kg", "inertia_kg_m2", "k_f_N_s2", "k_t_N_m_s2", "rotors", "rotor_speed_max_rad_s")
 _ROTOR_KEYS = {"number", "position_m", "angle_deg", "spin", "pair", "level"}
 _MOTOR_MAP_KEYS = {"input_unit", "input_min", "input_max", "speed_min_rad_s", "speed_max_rad_s", "law"}
+_ROTOR_BALANCE_KEYS = {"thrust_N", "scatter_N", "flights", "sources"}
 # Unit suffixes this project does not use, so that `mass_g` or `arm_length_cm` says "wrong unit".
 _FOREIGN_UNIT_SUFFIXES = (
     "_g",
@@ -312,6 +314,26 @@ class _Reader:
             raise self.fail(f"{where}.speed_max_rad_s", f"must exceed speed_min_rad_s ({w_lo:g})")
         return MotorMap(unit, lo, hi, w_lo, w_hi, law)
 
+    def rotor_balance(self, value: Any, n_rotors: int) -> dict[str, Any]:
+        """The rotor balance ``multirotor identify`` writes (multirotor_ros.ident.rotor_balance)."""
+        where = "rotor_balance"
+        self.check_keys(
+            where, value, sorted(_ROTOR_BALANCE_KEYS), required=("thrust_N", "scatter_N", "flights")
+        )
+        lists = {}
+        for key, kind in (("thrust_N", "positive"), ("scatter_N", "nonnegative")):
+            entries = value[key]
+            if not isinstance(entries, list) or len(entries) != n_rotors:
+                raise self.fail(f"{where}.{key}", f"expected a list of {n_rotors} numbers, one per rotor")
+            lists[key] = [self.number(f"{where}.{key}[{i}]", v, kind) for i, v in enumerate(entries)]
+        flights = self.number(f"{where}.flights", value["flights"], "positive")
+        if flights != int(flights):
+            raise self.fail(f"{where}.flights", f"expected a whole number of flights, got {flights:g}")
+        sources = value.get("sources", [])
+        if not isinstance(sources, list):
+            raise self.fail(f"{where}.sources", "expected a list of log names")
+        return {**lists, "flights": int(flights), "sources": [str(s) for s in sources]}
+
     def effects(self, value: Any) -> tuple[dict[str, Any], ...]:
         # Imported here: effects import this module for the Airframe type.
         from multirotor_ros.model.effects import validate_effect_spec
@@ -355,6 +377,8 @@ def airframe_from_dict(
             if not isinstance(document[key], Mapping):
                 raise reader.fail(key, "expected a mapping")
             sections[key] = dict(document[key])
+    if "rotor_balance" in document:
+        sections["rotor_balance"] = reader.rotor_balance(document["rotor_balance"], len(rotors))
     airframe = Airframe(
         name=str(document.get("name") or (source_path.stem if source_path else "airframe")),
         mass_kg=numbers["mass_kg"],
