@@ -175,6 +175,15 @@ def test_an_attitude_in_degrees_is_refused_with_its_evidence():
         identify(X8, gentle_degrees, [])
 
 
+def test_accelerations_in_g_are_refused_with_their_evidence():
+    """Against the rate of change of the logged velocity (issue 13); the same log in m/s^2 is accepted."""
+    log = flight("x8_octorotor", duration_s=8.0, seed=5)
+    in_g = _edit(log, **{name: (lambda a: a / 9.80665) for name in ("ax", "ay", "az")})
+    with pytest.raises(LogMismatch, match=r"columns ax, ay, az are 0\.10\d times the rate of change of vx"):
+        identify(X8, in_g, [])
+    identify(X8, log, [])
+
+
 def test_a_rest_with_motors_off_and_a_noisy_estimate_is_ground_not_flight():
     """Motors off at 2-3 cm, the estimate's velocity and acceleration wandering as an EKF's on the ground."""
     log = flight("x8_octorotor", duration_s=8.0, seed=5)

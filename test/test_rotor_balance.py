@@ -18,6 +18,7 @@ from multirotor_ros.discrepancy.sweep import hidden_effect_flight
 from multirotor_ros.discrepancy.workflow import find_discrepancy
 from multirotor_ros.ident.identify import identify
 from multirotor_ros.ident.rotor_balance import (
+    BaselineState,
     FlightBalance,
     RotorBaseline,
     balance_rows,
@@ -67,6 +68,10 @@ def test_a_weakened_rotor_a_payload_and_nothing_are_told_apart_on_exact_thrusts(
     assert warnings == [] and baseline.n_flights == 4
     # The baseline's yaw weights make its own thrusts balance yaw, whatever the cw/ccw drag ratio.
     assert abs(balance_rows(crazyflie, baseline.thrust_N)[3] @ baseline.thrust_N) < 1e-12
+
+    state = BaselineState.of(crazyflie, normal)
+    assert state.mass_kg == pytest.approx(0.031) and state.cw_drag_ratio == pytest.approx(1.2)
+    assert state.cg_m == pytest.approx((-0.002, 0.0004))
 
     same = diagnose(crazyflie, baseline, balance(normal))
     assert same.named == "none" and same.flagged == [] and same.ambiguous_with == []
@@ -158,6 +163,9 @@ def test_real_crazyflie_flights_identify_from_normal_flights_then_name_the_cut_p
     normals = [flight("normal_flight", name) for name in ("E9_log00", "E9_log01")]
     result = identify(airframe, normals, [])
     assert result.rotor_balance is not None and result.rotor_balance.n_flights == 2
+    vehicle = result.to_json()["rotor_balance"]
+    assert 0.0 < vehicle["std"]["r_x"] < 2e-4 and -0.004 < vehicle["cg_offset_m"]["r_x"] < 0.0
+    assert 1.1 < vehicle["cw_over_ccw_drag_ratio"] < 1.3  # this Crazyflie's cw rotors carry less
     result.write(tmp_path, plots=False)
     identified = load_airframe(tmp_path / "crazyflie_2_1_identified.yaml")
     assert RotorBaseline.of_airframe(identified) is not None

@@ -43,6 +43,7 @@ from multirotor_ros.ident.rotor_balance import (
     BaselineState,
     RotorBalanceError,
     RotorBaseline,
+    baseline_state_std,
     flight_balance,
     rotor_baseline,
 )
@@ -140,12 +141,25 @@ class IdentificationResult:
     def _rotor_balance_json(self) -> dict[str, Any] | None:
         if self.rotor_balance is None:
             return None
-        state = BaselineState.of(self.model_after.airframe, self.rotor_balance)
+        airframe = self.model_after.airframe
+        state = BaselineState.of(airframe, self.rotor_balance.thrust_N)
+        std = baseline_state_std(airframe, self.rotor_balance)
         return {
             **self.rotor_balance.to_section(),
             "weight_carried_kg": state.mass_kg,
             "cg_offset_m": {"r_x": state.cg_m[0], "r_y": state.cg_m[1]},
             "cw_over_ccw_drag_ratio": state.cw_drag_ratio,
+            "std": {
+                "weight_carried_kg": float(std[0]),
+                "r_x": float(std[1]),
+                "r_y": float(std[2]),
+                "cw_over_ccw_drag_ratio": float(std[3]),
+            },
+            "not_identifiable": (
+                "each rotor's own effectiveness in the normal state: steady flight gives four balances "
+                "(weight, two moments, yaw) and they trade off against the centre of gravity; the rotors "
+                "are judged against this balance instead"
+            ),
         }
 
     def summary(self) -> str:
@@ -166,9 +180,10 @@ class IdentificationResult:
             lines.append(
                 f"  rotor balance over {balance['flights']} flight(s): rotor thrusts [mN] {thrusts}; weight "
                 f"carried {balance['weight_carried_kg'] * 1e3:.1f} g; centre of gravity "
-                f"({balance['cg_offset_m']['r_x'] * 1e3:+.2f}, "
-                f"{balance['cg_offset_m']['r_y'] * 1e3:+.2f}) mm; "
-                f"cw/ccw drag ratio {balance['cw_over_ccw_drag_ratio']:.3f}"
+                f"({balance['cg_offset_m']['r_x'] * 1e3:+.2f} +/- {balance['std']['r_x'] * 1e3:.2f}, "
+                f"{balance['cg_offset_m']['r_y'] * 1e3:+.2f} +/- {balance['std']['r_y'] * 1e3:.2f}) mm; "
+                f"cw/ccw drag ratio {balance['cw_over_ccw_drag_ratio']:.3f} "
+                f"+/- {balance['std']['cw_over_ccw_drag_ratio']:.3f}"
             )
         before = ", ".join(f"{a} {self.mse_before[a]:.4g}" for a in AXES)
         after = ", ".join(f"{a} {self.mse_after[a]:.4g}" for a in AXES)

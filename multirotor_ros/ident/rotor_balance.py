@@ -236,17 +236,44 @@ class BaselineState:
     cw_drag_ratio: float
 
     @classmethod
-    def of(cls, airframe: Airframe, baseline: RotorBaseline) -> BaselineState:
-        """Weight, centre of gravity and yaw ratio from the baseline's thrusts."""
-        rows = balance_rows(airframe, baseline.thrust_N)
-        weight = float(baseline.thrust_N.sum())
-        moments = rows[1:3] @ baseline.thrust_N
+    def of(cls, airframe: Airframe, thrust_N: FloatArray) -> BaselineState:
+        """Weight, centre of gravity and yaw ratio from mean rotor thrusts."""
+        rows = balance_rows(airframe, thrust_N)
+        weight = float(thrust_N.sum())
+        moments = rows[1:3] @ thrust_N
         return cls(
             weight,
             weight / GRAVITY_M_S2,
             (float(moments[1] / weight), float(moments[0] / weight)),
             float(rows[3].max()),
         )
+
+    def as_vector(self) -> FloatArray:
+        """(mass, r_x, r_y, cw/ccw drag ratio), the order of :func:`baseline_state_std`."""
+        return np.array([self.mass_kg, self.cg_m[0], self.cg_m[1], self.cw_drag_ratio])
+
+
+def baseline_state_std(airframe: Airframe, baseline: RotorBaseline) -> FloatArray:
+    """Standard deviations of (mass, r_x, r_y, cw/ccw drag ratio) of the baseline's mean thrusts.
+
+    First-order propagation of each rotor's mean uncertainty, its flight-to-flight scatter / sqrt(flights).
+    """
+    sigma = baseline.scatter_N / math.sqrt(baseline.n_flights)
+    centre = BaselineState.of(airframe, baseline.thrust_N).as_vector()
+    step = 1e-6 * baseline.thrust_N
+    jacobian = np.column_stack(
+        [
+            (
+                BaselineState.of(
+                    airframe, baseline.thrust_N + step[k] * np.eye(airframe.n_rotors)[k]
+                ).as_vector()
+                - centre
+            )
+            / step[k]
+            for k in range(airframe.n_rotors)
+        ]
+    )
+    return np.sqrt((jacobian**2) @ (sigma**2))
 
 
 @dataclass(frozen=True)
@@ -363,7 +390,7 @@ def diagnose(airframe: Airframe, baseline: RotorBaseline, suspect: FlightBalance
     z = (effectiveness - 1.0) / effectiveness_std
     flagged = [int(k) + 1 for k in np.flatnonzero(z < -SIGNIFICANT_Z)]
     change = F - mu
-    state = BaselineState.of(airframe, baseline)
+    state = BaselineState.of(airframe, baseline.thrust_N)
 
     explanations: dict[str, Explanation] = {}
     chi2_none = float(np.sum((change / sigma) ** 2))

@@ -421,9 +421,9 @@ def _read_log(
         raise NotEnoughData(
             f"{source}: {t.size} samples; identification needs at least {settings.min_usable_samples}"
         )
-    degrees = _attitude_in_degrees(flight)
-    if degrees is not None:
-        raise LogMismatch(f"{source}: {degrees}")
+    for wrong_unit in (_attitude_in_degrees(flight), _acceleration_in_g(flight)):
+        if wrong_unit is not None:
+            raise LogMismatch(f"{source}: {wrong_unit}")
     dt = float(np.median(np.diff(t)))
     gaps = np.flatnonzero(np.diff(t) > settings.gap_factor * dt)
     if gaps.size:
@@ -443,10 +443,37 @@ EULER_BOUNDS_RAD = {"roll": math.pi, "pitch": math.pi / 2}
 EULER_BOUND_MARGIN_RAD = 0.01
 # Roll and pitch change about as fast as p and q say in radians, 180/pi = 57.3 times as fast in degrees;
 # a log is taken for degrees within this factor of 57.3, when the two go together (correlation at least
-# this, over at least this many sample pairs: the rotation is signal, not sensor noise).
+# this, over at least this many sample pairs: the rotation is signal, not sensor noise). The same
+# factor and evidence serve accelerations in g against the velocity's rate of change (1/9.81).
 DEGREE_RATIO_SPREAD = 1.5
 DEGREE_RATIO_MIN_CORRELATION = 0.5
 DEGREE_RATIO_MIN_PAIRS = 20
+
+
+def _acceleration_in_g(flight: FlightLog) -> str | None:
+    """Why the log's accelerations are plainly in g (flight_log.md gives m/s^2), or None.
+
+    Evidence: with velocity logged too, the acceleration is about 1/9.81 of the velocity's rate of
+    change (least squares over the samples, the two correlated: the motion is signal, not noise).
+    """
+    if not (flight.has_group("acceleration") and flight.has_group("velocity")) or flight.t.size < 3:
+        return None
+    rate = np.gradient(flight.group("velocity"), flight.t, axis=0).ravel()
+    logged = flight.group("acceleration").ravel()
+    usable = np.isfinite(rate) & np.isfinite(logged)
+    rate, logged = rate[usable], logged[usable]
+    if rate.size < DEGREE_RATIO_MIN_PAIRS or np.ptp(rate) == 0 or np.ptp(logged) == 0:
+        return None
+    if not np.corrcoef(rate, logged)[0, 1] >= DEGREE_RATIO_MIN_CORRELATION:
+        return None
+    ratio = float(np.dot(logged, rate) / np.dot(rate, rate))
+    if not 1.0 / (GRAVITY_M_S2 * DEGREE_RATIO_SPREAD) <= ratio <= DEGREE_RATIO_SPREAD / GRAVITY_M_S2:
+        return None
+    return (
+        f"columns ax, ay, az are {ratio:.3f} times the rate of change of vx, vy, vz (least squares over "
+        f"{rate.size} values; 1 if both were SI, 1/9.81 = 0.102 for accelerations in g): the accelerations "
+        "look logged in g; the flight log gives m/s^2 (multiply g by 9.80665)"
+    )
 
 
 def _attitude_in_degrees(flight: FlightLog) -> str | None:
