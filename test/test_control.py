@@ -212,9 +212,12 @@ def test_yaw_gives_way_before_thrust_and_attitude(
 
 
 def test_attitude_is_kept_before_thrust(allocator: Allocator) -> None:
-    # Near full thrust a large roll torque cannot be had with the collective asked: thrust gives way.
+    # Near full thrust a large roll torque cannot be had with the collective asked: thrust gives way. The
+    # torque is 0.2 of the thrust at 0.1 m, or at the rotors' distance from the roll axis where that is
+    # shorter (the Crazyflie's 33 mm), so that the airframe can give it at a lower collective.
     hover = 0.95 * allocator.max_thrust_N
-    roll = 0.2 * hover * 0.1
+    lever_m = min(0.1, float(np.max(np.abs(allocator.matrix[1] / allocator.matrix[0]))))
+    roll = 0.2 * hover * lever_m
     result = allocator.allocate(hover, (roll, 0.0, 0.0))
     delivered = allocator.matrix @ result.omega_rad_s**2
     assert result.roll_pitch_fraction == 1.0

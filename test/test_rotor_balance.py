@@ -7,6 +7,7 @@ real CrazyPAD flights through `identify` (several normal flights) and `discrepan
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -179,6 +180,10 @@ def test_real_crazyflie_flights_identify_from_normal_flights_then_name_the_cut_p
     assert int(np.argmin(effectiveness)) == 2 and (1.0 - effectiveness[2]) / std[2] > 3.0
     assert cut.parameters["e_3"] == pytest.approx(effectiveness[2])
     assert cut.to_json()["ambiguous_with"] == []
+    tie = dataclasses.replace(
+        cut, ambiguous_with=[{"effect": "mass_offset+cg_offset", "parameters": {}, "std": {}}]
+    )
+    assert tie.verdict() == "rotor_effectiveness or mass_offset+cg_offset: this log cannot tell them apart"
 
     left_out = find_discrepancy(identified, flight("normal_flight", "E9_log02"))
     assert left_out.missing_effect == "none", left_out.verdict()

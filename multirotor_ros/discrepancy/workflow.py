@@ -25,8 +25,9 @@ quoted here):
    If neither adds to the other in the translational data, the torques decide: the fits never saw the
    roll and pitch torque balance, and a mass offset leaves it as modelled while a thrust change per rotor
    does not (each effect's ``torque_signature`` says how). If that is not conclusive either, the report
-   says the log cannot separate them (``ambiguous_with``), names the higher score and the regimes
-   (each effect's ``regime``) a flight should cover to tell them apart.
+   says the log cannot tell them apart: the answer is "X or Y" (``ambiguous_with`` lists Y with its
+   parameters; X, the higher score, is listed first, not chosen), with the regimes (each effect's
+   ``regime``) a flight should cover to tell them apart.
 5. The named effect is added and fitted on the whole log; the gap before and after is reported.
    ``max_effects`` > 1 repeats 3-5 with the named effects in the model (their linear parameters refitted
    with each linear candidate, all of them together after each round).
@@ -170,7 +171,8 @@ class DiscrepancyReport:
     final_model: Model
     residual_before: FloatArray
     residual_after: FloatArray
-    ambiguous_with: list[str] = field(default_factory=list)
+    # Look-alikes of the first named effect that this log cannot tell from it: effect, parameters, std.
+    ambiguous_with: list[dict[str, Any]] = field(default_factory=list)
     rotor_balance: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
@@ -206,7 +208,8 @@ class DiscrepancyReport:
         if not self.ambiguous_with:
             return " + ".join(self.missing_effects) or "none"
         first, *also = self.missing_effects
-        verdict = f"{first} or {' or '.join(self.ambiguous_with)}: this log cannot tell them apart"
+        others = " or ".join(entry["effect"] for entry in self.ambiguous_with)
+        verdict = f"{first} or {others}: this log cannot tell them apart"
         return verdict + (f"; and {' + '.join(also)}" if also else "")
 
     def write(self, out_dir: str | Path, plots: bool = True) -> list[Path]:
@@ -839,6 +842,12 @@ def _report(
         "square position error [m^2] over 1 s horizons re-initialised on the measured position and velocity."
     )
     position_before = disagreement.position_mse
+    first = next((c for c in naming.candidates if named and c.effect == named[0]), None)
+    ambiguous_with = [
+        {"effect": c.effect, "parameters": _json_parameters(c.parameters), "std": c.std}
+        for c in naming.candidates
+        if first is not None and c.round == first.round and c.effect in first.ambiguous_with
+    ]
     return DiscrepancyReport(
         log=Path(str(samples.source)).name,
         airframe=workflow.airframe.name,
@@ -866,6 +875,7 @@ def _report(
         final_model=final.model,
         residual_before=disagreement.residual,
         residual_after=final.residual,
+        ambiguous_with=ambiguous_with,
     )
 
 
@@ -928,7 +938,14 @@ def _add_rotor_balance(report: DiscrepancyReport, stage: RotorBalanceStage) -> N
     report.missing_effects = effects + [e for e in report.missing_effects if e not in effects]
     report.parameters = {**fitted.parameters, **report.parameters}
     report.std = {**fitted.std, **report.std}
-    report.ambiguous_with += diagnosis.ambiguous_with
+    report.ambiguous_with = [
+        {
+            "effect": name,
+            "parameters": diagnosis.explanations[name].parameters,
+            "std": diagnosis.explanations[name].std,
+        }
+        for name in diagnosis.ambiguous_with
+    ]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -997,10 +1014,11 @@ def _separate_lookalikes(
             rival.ambiguous_with.append(best.effect)
             words.append(
                 f"{best.effect} and {rival.effect} explain the same part of the error and this log cannot "
-                f"separate them (neither adds to the other on held-out data, and the torques do not decide); "
-                f"{best.effect} is named for its higher score ({best.score:.3f} against {rival.score:.3f}). "
-                f"A flight covering more of {_regime(best.effect)} and {_regime(rival.effect)} would tell "
-                "them apart."
+                "tell them apart (neither adds to the other on held-out data, and the torques do not "
+                "decide): "
+                f"the answer is {best.effect} or {rival.effect} (scores {best.score:.3f} and "
+                f"{rival.score:.3f}; {best.effect} is listed first, not chosen). A flight covering more of "
+                f"{_regime(best.effect)} and {_regime(rival.effect)} would tell them apart."
             )
     return best, best_trial, words
 
