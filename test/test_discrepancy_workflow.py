@@ -249,3 +249,67 @@ def test_a_hover_cannot_reveal_horizontal_drag_and_says_so():
     assert set(drag.not_identifiable) == {"c_x", "c_y"}
     assert any("Not testable" in line for line in report.explanation)
     assert np.isfinite(total(report.mse_before))
+
+
+# ---------------------------------------------------------------------------------------------
+# Reports that never contradict themselves (issue 14, item 4)
+
+
+def test_two_effects_that_add_to_each_other_are_said_present_only_if_a_round_names_both():
+    from multirotor_ros.discrepancy.workflow import Naming, _both_present_sentence
+
+    named_both = Naming({}, named=["rotor_drag", "quadratic_drag"])
+    assert _both_present_sentence(1, "rotor_drag", "quadratic_drag", named_both, 2).endswith(
+        "both are present, and round 2 names quadratic_drag."
+    )
+    named_one = Naming({}, named=["rotor_drag"])
+    assert _both_present_sentence(1, "rotor_drag", "quadratic_drag", named_one, 2).endswith(
+        "with rotor_drag in the model quadratic_drag is no longer significant in round 2: "
+        "only rotor_drag is named."
+    )
+    assert _both_present_sentence(1, "rotor_drag", "quadratic_drag", named_one, 1).endswith(
+        "quadratic_drag may be present too; --max-effects 2 tests it in a further round."
+    )
+
+
+def test_a_regime_variable_without_spread_is_never_a_regime():
+    from multirotor_ros.discrepancy.regimes import RegimeVariable, concentration
+
+    rows = np.ones(200, dtype=bool)
+    error = np.linspace(0.0, 1.0, 200) ** 2
+    constant = RegimeVariable("split", "lower rotors' share of thrust", "", np.full(200, 0.5))
+    speed = RegimeVariable("speed", "horizontal speed", "m/s", np.linspace(0.0, 3.0, 200))
+    found = concentration(error, rows, [constant, speed])
+    assert [c.variable for c in found] == ["speed"]
+    assert "0.5 to 0.5" not in found[0].text and "highest fifth" in found[0].text
+
+
+def test_a_fault_with_no_flight_before_its_onset_is_not_significant_and_an_onset_is_stated():
+    from multirotor_ros.discrepancy.workflow import _onset_without_flight_before, _regime_text
+    from multirotor_ros.ident.samples import load_samples
+    from multirotor_ros.model.airframe import load_airframe
+
+    samples = load_samples(flight("x8_octorotor", duration_s=8.0, seed=5), load_airframe("x8_octorotor"))
+    first = float(samples.t[samples.valid][0])
+    why = _onset_without_flight_before(
+        "actuator_fault", {"t_fault_s": first + 0.05}, samples, DiscrepancySettings()
+    )
+    assert why is not None and why.startswith("not significant: its onset") and "rotor_effectiveness" in why
+    assert (
+        _onset_without_flight_before("actuator_fault", {"t_fault_s": 5.0}, samples, DiscrepancySettings())
+        is None
+    )
+    assert _onset_without_flight_before("rotor_drag", {"k_h": 1e-4}, samples, DiscrepancySettings()) is None
+    assert _regime_text("actuator_fault", {"t_fault_s": 40.0}, []) == "explains nothing"
+
+
+def test_a_parameter_on_its_bound_is_reported_as_a_bound_without_a_std():
+    from multirotor_ros.ident.parameters import FittedParameter
+    from multirotor_ros.model.airframe import load_airframe
+
+    x8 = load_airframe("x8_octorotor")
+    tau = FittedParameter.of(("motor_lag", "tau_s"), x8)
+    assert tau.bound_reached(tau.lower) == f"lower bound {tau.lower:.6g}"
+    assert tau.bound_reached(0.5 * (tau.lower + min(tau.upper, 1.0))) is None
+    motor = FittedParameter.of(("actuator_fault", "motor"), x8)
+    assert motor.bound_reached(motor.lower) is None  # a rotor number: its range bounds no estimate

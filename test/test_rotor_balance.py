@@ -8,6 +8,7 @@ real CrazyPAD flights through `identify` (several normal flights) and `discrepan
 from __future__ import annotations
 
 import dataclasses
+import html
 from pathlib import Path
 
 import numpy as np
@@ -180,6 +181,14 @@ def test_real_crazyflie_flights_identify_from_normal_flights_then_name_the_cut_p
     assert int(np.argmin(effectiveness)) == 2 and (1.0 - effectiveness[2]) / std[2] > 3.0
     assert cut.parameters["e_3"] == pytest.approx(effectiveness[2])
     assert cut.to_json()["ambiguous_with"] == []
+    written = cut.write(tmp_path / "report")
+    page = (tmp_path / "report" / "report.html").read_text()
+    assert "rotor_effectiveness (named)" not in page  # a rotor-balance finding is no translational candidate
+    from multirotor_ros.discrepancy.report import CAPTIONS
+
+    plots = [path for path in written if path.suffix == ".png"]
+    assert len(plots) >= 3
+    assert all(html.escape(CAPTIONS[path.stem]) in page for path in plots)
     tie = dataclasses.replace(
         cut, ambiguous_with=[{"effect": "mass_offset+cg_offset", "parameters": {}, "std": {}}]
     )

@@ -68,6 +68,12 @@ def _bins(values: FloatArray, rows: BoolArray) -> tuple[FloatArray, FloatArray]:
     return np.where(rows, index, -1), edges
 
 
+def _varies(values: FloatArray, rows: BoolArray) -> bool:
+    """Whether a regime variable takes more than one value over the rows (a constant has no regimes)."""
+    used = values[rows]
+    return used.size > 1 and bool(np.ptp(used) > 1e-9 * max(float(np.max(np.abs(used))), 1e-300))
+
+
 def describe_bin(variable: RegimeVariable, edges: FloatArray, b: int) -> str:
     """'horizontal speed 2.1-2.9 m/s (highest fifth of this log)'."""
     unit = f" {variable.unit}" if variable.unit else ""
@@ -95,13 +101,15 @@ def concentration(
     if mean <= 0:
         return found
     for variable in variables:
-        if variable.key in exclude:
+        if variable.key in exclude or not _varies(variable.values, rows):
             continue
         index, edges = _bins(variable.values, rows)
         sums = np.array([per_sample[index == b].sum() for b in range(N_BINS)])
         counts = np.array([np.count_nonzero(index == b) for b in range(N_BINS)])
         means = sums / np.maximum(counts, 1)
         b = int(np.argmax(means))
+        if f"{edges[b]:.3g}" == f"{edges[b + 1]:.3g}":
+            continue  # a bin of one value (most samples share it): "0.5 to 0.5" says nothing
         found.append(
             Concentration(
                 variable.key,
@@ -119,7 +127,7 @@ def window_conditions(samples: FlightSamples, variables: list[RegimeVariable], s
     parts = []
     rows = samples.valid
     for variable in variables:
-        if variable.key == "time":
+        if variable.key == "time" or not _varies(variable.values, rows):
             continue
         window_rows = rows[start:stop]
         if not np.any(window_rows):

@@ -35,6 +35,21 @@ def dumps(document: dict[str, Any]) -> str:
     return json.dumps(json_safe(document), indent=2, default=_json_default)
 
 
+# What each plot of :func:`make_plots` shows and what to look at, by file stem (report.html's captions).
+CAPTIONS = {
+    "acceleration": "Measured acceleration against the baseline model and the model with the named effect, "
+    "per world axis: where the baseline departs from the measurement, the named effect should follow it.",
+    "residual": "Acceleration error (measured minus modelled) before and after the named effect: the gap "
+    "should shrink to noise, with no structure left in time.",
+    "position": "Position over 1 s horizons re-initialised on the measurement: a model that drifts away "
+    "within the second is missing force; the named effect should stay on the measured track.",
+    "candidates": "Every candidate's held-out share of the error removed (red: significant; the named "
+    "effect and any effect this log cannot tell from it are marked in their labels).",
+    "regime": "Squared acceleration error along the quantity where it gathers most: the named effect "
+    "should flatten the rise.",
+}
+
+
 def make_plots(report: DiscrepancyReport, out_dir: Path) -> list[Path]:
     """The report's PNG files."""
     samples = report.samples
@@ -88,7 +103,7 @@ def make_plots(report: DiscrepancyReport, out_dir: Path) -> list[Path]:
     if first_round:
         paths.append(
             plot_bars(
-                [c.effect for c in first_round],
+                [_candidate_label(c.effect, report) for c in first_round],
                 [c.score for c in first_round],
                 [c.significant for c in first_round],
                 out_dir / "candidates.png",
@@ -116,6 +131,15 @@ def make_plots(report: DiscrepancyReport, out_dir: Path) -> list[Path]:
                 )
             )
     return paths
+
+
+def _candidate_label(effect: str, report: DiscrepancyReport) -> str:
+    """The candidate's name, marked when it is the named effect or a look-alike of it."""
+    if effect in report.missing_effects:
+        return f"{effect} (named)"
+    if any(entry["effect"] == effect for entry in report.ambiguous_with):
+        return f"{effect} (cannot tell apart)"
+    return effect
 
 
 def samples_airframe(report: DiscrepancyReport):  # noqa: ANN201 - Airframe
@@ -234,7 +258,7 @@ def render_html(report: DiscrepancyReport, images: list[Path]) -> str:
     figures = "".join(
         f'<figure><img alt="{e(p.stem)}" src="data:image/png;base64,'
         f'{base64.b64encode(p.read_bytes()).decode()}">'
-        f"<figcaption>{e(p.name)}</figcaption></figure>"
+        f"<figcaption>{e(CAPTIONS.get(p.stem, p.name))}</figcaption></figure>"
         for p in images
     )
     listing = "".join(f"<li>{e(x)}</li>" for x in report.explanation)

@@ -32,6 +32,10 @@ class DiscrepancySettings:
     # [s] window of the peak RMS above: long enough to average sensor noise, short enough for a fault or a
     # pass near the ground to stand out of the rest of the flight.
     peak_window_s: float = 1.0
+    # [s] of usable flight an actuator fault needs before its onset: without flight before it, "stopped at
+    # the start" is no fault onset but a rotor weak for the whole log (rotor_effectiveness, which the rotor
+    # balance tells), and a vehicle that took off on it flew with its allocation planning on that rotor.
+    min_flight_before_fault_s: float = 1.0
 
     # -- cross-validation
     # [-] folds of interleaved blocks: each fold is predicted by a fit on the other 80 % of the log.

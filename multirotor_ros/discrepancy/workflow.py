@@ -62,7 +62,7 @@ from multirotor_ros.discrepancy.regimes import concentration, error_windows, reg
 from multirotor_ros.discrepancy.settings import DiscrepancySettings
 from multirotor_ros.ident.fit import FitResult, Fitter, acceleration_residual, fit_parameters, torque_residual
 from multirotor_ros.ident.metrics import horizon_position_error, model_acceleration, per_axis
-from multirotor_ros.ident.parameters import ParameterRef
+from multirotor_ros.ident.parameters import FittedParameter, ParameterRef
 from multirotor_ros.ident.regressors import parameter_value
 from multirotor_ros.ident.rotor_balance import (
     RotorBalanceError,
@@ -474,6 +474,9 @@ class Naming:
     start: dict[str, dict[str, float]] = field(default_factory=dict)  # the named effects' fitted values
     candidates: list[Candidate] = field(default_factory=list)
     explanation: list[str] = field(default_factory=list)
+    # Pairs that each explained a part the other did not: (line in explanation, round, best, rival). Their
+    # sentence is written once the rounds are over, when it is known whether a later round named the rival.
+    both_present: list[tuple[int, int, str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -687,9 +690,33 @@ def _name_effects(
             f"on held-out data (z = {best.z_statistic:.1f}; its force reaches "
             f"{best.peak_contribution_m_s2:.3g} m/s^2); it {best.regime}."
         )
-        naming.explanation += lookalike_words
+        for line in lookalike_words:
+            if isinstance(line, tuple):
+                naming.both_present.append((len(naming.explanation), round_number, *line))
+                line = ""
+            naming.explanation.append(line)
         reference = workflow.residual_with(naming.named, naming.start)
+    for index, round_number, best_effect, rival in naming.both_present:
+        naming.explanation[index] = _both_present_sentence(
+            round_number, best_effect, rival, naming, max_effects
+        )
     return naming
+
+
+def _both_present_sentence(round_number: int, best: str, rival: str, naming: Naming, max_effects: int) -> str:
+    """What two effects that each add to the other mean, given what the later rounds named."""
+    pair = f"{best} and {rival} each explain a part of the error the other does not (held-out data)"
+    if rival in naming.named:
+        later = naming.named.index(rival) + 1
+        return f"{pair}: both are present, and round {later} names {rival}."
+    if max_effects > round_number:
+        return (
+            f"{pair}, but with {best} in the model {rival} is no longer significant in round "
+            f"{round_number + 1}: only {best} is named."
+        )
+    return (
+        f"{pair}: {rival} may be present too; --max-effects {round_number + 1} tests it in a further round."
+    )
 
 
 def _screen(
@@ -728,6 +755,8 @@ def _score(
         and score > 0
         and peak >= settings.negligible_acceleration_m_s2
     )
+    early_onset = _onset_without_flight_before(effect_id, trial.parameters(effect_id), samples, settings)
+    significant = significant and early_onset is None
     bias_like = False
     if significant and peak < settings.bias_check_below_m_s2:
         # A small effect must also explain something an accelerometer bias cannot.
@@ -741,19 +770,51 @@ def _score(
         effect=effect_id,
         round=round_number,
         parameters=trial.parameters(effect_id),
-        std={name: trial.fit.std.get((effect_id, name)) for name in names},
+        std=_std_unless_at_bound(
+            workflow.airframe,
+            [(effect_id, name) for name in names],
+            trial.parameters(effect_id),
+            trial.fit.std,
+        )[0],
         mse_after=per_axis(np.mean(trial.heldout[valid] ** 2, axis=0)),
         score=score,
         z_statistic=z_stat,
         peak_contribution_m_s2=peak,
         significant=significant,
-        regime=f"explains most where {where_gain[0].text}"
-        if where_gain and score > 0
-        else "explains nothing",
+        regime=_regime_text(effect_id, trial.parameters(effect_id), where_gain if score > 0 else []),
         not_identifiable=not_identifiable,
     )
-    candidate.verdict = _verdict(candidate, bias_like, settings)
+    candidate.verdict = early_onset or _verdict(candidate, bias_like, settings)
     return candidate
+
+
+def _onset_without_flight_before(
+    effect_id: str, parameters: Mapping[str, float], samples: FlightSamples, settings: DiscrepancySettings
+) -> str | None:
+    """Why a fault onset with too little usable flight before it is not significant, or None."""
+    onset = parameters.get("t_fault_s")
+    usable = samples.t[samples.valid]
+    if onset is None or not math.isfinite(onset) or usable.size == 0:
+        return None
+    before_s = float(np.count_nonzero(usable < onset)) * samples.dt
+    if before_s >= settings.min_flight_before_fault_s:
+        return None
+    return (
+        f"not significant: its onset (t = {onset:.2f} s) has {before_s:.2f} s of usable flight before it "
+        f"(at least {settings.min_flight_before_fault_s:g} s needed): a rotor weak from the start is "
+        "rotor_effectiveness, not a fault"
+    )
+
+
+def _regime_text(effect_id: str, parameters: Mapping[str, float], where: Sequence[Any]) -> str:
+    """Where the candidate explains most; an effect with an onset says when it began first."""
+    if not where:
+        return "explains nothing"
+    text = f"explains most where {where[0].text}"
+    onset = parameters.get("t_fault_s")
+    if onset is not None and math.isfinite(onset):
+        return f"starts at t = {onset:.2f} s and {text}"
+    return text
 
 
 def _verdict(candidate: Candidate, bias_like: bool, settings: DiscrepancySettings) -> str:
@@ -799,15 +860,39 @@ def _fit_named(workflow: Workflow, naming: Naming, disagreement: Disagreement) -
         return FinalFit(workflow.baseline, {}, {}, disagreement.residual, [])
     trial = workflow.trial(naming.named, naming.start)
     refs = [(e, name) for e in naming.named for name in workflow.parameter_names(e)]
+    parameters = {name: float(v) for e in naming.named for name, v in trial.parameters(e).items()}
+    std, at_bounds = _std_unless_at_bound(workflow.airframe, refs, parameters, trial.fit.std)
     return FinalFit(
         model=trial.fit.model,
-        parameters={name: float(v) for e in naming.named for name, v in trial.parameters(e).items()},
-        std={name: trial.fit.std.get((e, name)) for e, name in refs},
+        parameters=parameters,
+        std=std,
         residual=trial.in_sample,
         warnings=[
             f"{e}.{name}: {why}" for e, name in refs if (why := trial.fit.not_identifiable.get((e, name)))
-        ],
+        ]
+        + at_bounds,
     )
+
+
+def _std_unless_at_bound(
+    airframe: Airframe,
+    refs: Sequence[ParameterRef],
+    values: Mapping[str, float],
+    fitted_std: Mapping[ParameterRef, float | None],
+) -> tuple[dict[str, float | None], list[str]]:
+    """The fit's std per parameter, None for one on a bound (a limit of the fit, not an estimate), and why."""
+    std: dict[str, float | None] = {}
+    words = []
+    for ref in refs:
+        name = ref[1]
+        bound = FittedParameter.of(ref, airframe).bound_reached(values[name])
+        std[name] = None if bound else fitted_std.get(ref)
+        if bound:
+            words.append(
+                f"{ref[0]}.{name} = {values[name]:.6g} is at its {bound}: the fit's limit, not an estimate "
+                "(no standard deviation)"
+            )
+    return std, words
 
 
 def _report(
@@ -954,12 +1039,16 @@ def _add_rotor_balance(report: DiscrepancyReport, stage: RotorBalanceStage) -> N
 
 def _separate_lookalikes(
     workflow: Workflow, significant: list[tuple[Candidate, Trial]], naming: Naming
-) -> tuple[Candidate, Trial, list[str]]:
-    """Fit the best with each close competitor; keep the one the other does not add to (module docstring)."""
+) -> tuple[Candidate, Trial, list[str | tuple[str, str]]]:
+    """Fit the best with each close competitor; keep the one the other does not add to (module docstring).
+
+    The words are explanation lines; a pair (best, rival) marks a rival that adds to the best as the best
+    adds to it, whose sentence depends on the later rounds (:func:`_both_present_sentence`).
+    """
     valid, folds, settings = workflow.valid, workflow.folds, workflow.settings
     z_critical = settings.z_critical
     best, best_trial = significant[0]
-    words: list[str] = []
+    words: list[str | tuple[str, str]] = []
     close = [item for item in significant[1:] if item[0].score >= settings.lookalike_score_ratio * best.score]
     for rival, rival_trial in close[: settings.max_lookalikes]:
         pair = workflow.trial(
@@ -970,10 +1059,7 @@ def _separate_lookalikes(
         rival_adds = improvement_z(best_trial.heldout, pair.heldout, valid, folds) >= z_critical
         best_adds = improvement_z(rival_trial.heldout, pair.heldout, valid, folds) >= z_critical
         if best_adds and rival_adds:
-            words.append(
-                f"{best.effect} and {rival.effect} each explain a part the other does not: both seem present "
-                "(a further round names the other when --max-effects allows it)."
-            )
+            words.append((best.effect, rival.effect))
             continue
         # The torques are a channel neither fit has seen: when they are conclusive they decide, because a
         # one-sided translational verdict between look-alikes can come from noise in one regressor.

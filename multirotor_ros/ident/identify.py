@@ -414,7 +414,10 @@ def identify(
             held_at[name] = value
         else:
             parameters[name] = value
-            std[name] = fit.std.get(ref)
+            bound = fitted.bound_reached(value)
+            std[name] = None if bound else fit.std.get(ref)
+            if bound:
+                fit.notes.append(f"{name} = {value:.6g} is at its {bound}: the fit's limit, not an estimate")
             sd = std[name]
             if (
                 sd is not None

@@ -11,6 +11,7 @@ from the log: the data cannot tell a relevant value from nothing (:mod:`multirot
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from multirotor_ros.model.airframe import Airframe
@@ -57,6 +58,16 @@ class FittedParameter:
     def name(self) -> str:
         """The parameter's name in effects.md (or ``k_f_N_s2``)."""
         return self.ref[1]
+
+    def bound_reached(self, value: float) -> str | None:
+        """Which bound ``value`` sits on ("lower bound 0.0001"), or None: a bound is no estimate."""
+        if self.facts.discrete:
+            return None  # a rotor number or a count: its range is no estimate's limit
+        tolerance = 1e-6 * self.scale
+        for which, bound in (("lower", self.lower), ("upper", self.upper)):
+            if math.isfinite(bound) and abs(value - bound) <= tolerance:
+                return f"{which} bound {bound:.6g}"
+        return None
 
     @property
     def neutral(self) -> float:
