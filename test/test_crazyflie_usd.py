@@ -113,6 +113,33 @@ def test_a_logged_pitch_has_its_legacy_sign_turned_and_version_1_stamps_are_mill
     assert log.t[1] == pytest.approx(0.01)
 
 
+def test_without_acceleration_the_pitch_comes_from_the_velocity_and_without_either_it_is_refused(
+    crazyflie, tmp_path
+) -> None:
+    """A vehicle pitched by 2 deg accelerates along x at g tan(2 deg): its velocity ramps."""
+    ramp = 9.81 * np.tan(np.radians(2.0))
+    rows = []
+    for _, stamp, values in hover_records(200, pitch_deg=2.0, roll_deg=0.0, yaw_deg=0.0):
+        row = dict(zip([name for name, _ in STATE_VARIABLES], values, strict=True))
+        row["stateEstimate.vx"] = ramp * (stamp - 1_000_000) * 1e-6
+        rows.append((stamp, row))
+
+    def write(variables: list[tuple[str, str]]) -> Path:
+        records = [(FIXED_FREQUENCY, stamp, tuple(row[name] for name, _ in variables)) for stamp, row in rows]
+        path = tmp_path / "log"
+        path.write_bytes(usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", variables)}, records))
+        return path
+
+    no_accel = [(name, code) for name, code in STATE_VARIABLES if not name.startswith("stateEstimate.a")]
+    conversion = convert(write(no_accel), crazyflie)
+    np.testing.assert_allclose(np.degrees(conversion.log.columns["pitch"]), 2.0, atol=1e-3)
+    assert "a from the rate of change of the logged velocity" in conversion.log.metadata["derived"]
+    assert "ax" not in conversion.log.columns
+    bare = [(name, code) for name, code in no_accel if not name.startswith("stateEstimate.v")]
+    with pytest.raises(ConversionError, match="cannot be derived without stateEstimate.ax/ay/az or vx/vy/vz"):
+        convert(write(bare), crazyflie)
+
+
 def test_a_log_cut_short_is_read_up_to_its_last_whole_record_and_says_so(crazyflie, tmp_path) -> None:
     whole = usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", STATE_VARIABLES)}, hover_records(100))
     path = tmp_path / "cut"

@@ -22,8 +22,9 @@ frame x forward, y left, z up, i.e. FLU; a missing variable is left out, never i
   ``stateEstimate.pitch`` is logged with the legacy sign (positive nose up), so our ZYX pitch is its
   negative. When pitch is not logged (CrazyPAD's motor_data files log roll and yaw only), it is
   derived from the direction of the specific force ``f = a + g e_z`` in the yaw-rotated frame,
-  ``atan2(f_x', f_z')``: the estimator computed the world acceleration by rotating the accelerometer
-  with its attitude, so rotating it back recovers the tilt. Rotor drag and accelerometer misalignment
+  ``atan2(f_x', f_z')`` (a from the velocity's rate of change when no acceleration is logged): the
+  estimator computed the world acceleration by rotating the accelerometer with its attitude, so
+  rotating it back recovers the tilt. Rotor drag and accelerometer misalignment
   tilt the specific force off the body z axis; the notes give the RMS difference between the roll
   derived the same way and the logged roll (1-4 deg on CrazyPAD's flights) as the measure of that error.
 - ``motor.m1..m4`` (the motor power command, 0..65535, after the mixer and before the battery
@@ -46,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.io.log_builder import ConversionError, LogBuilder
@@ -58,6 +60,9 @@ CRAZYFLIE_GRAVITY_M_S2 = 9.81
 MOTOR_COMMAND_FULL_SCALE = 65535.0
 # Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
 HELD_HEADING_STD_DEG = 2.6
+# Window of the velocity's derivative when the acceleration is not logged: several 10 ms samples of
+# estimator noise, short beside the attitude changes of a flight (0.2 s).
+RATE_WINDOW_S = 0.2
 _PREAMBLE = struct.Struct("<BHH")
 _RECORD_HEADERS = {1: (struct.Struct("<HI"), 1e-3), 2: (struct.Struct("<HQ"), 1e-6)}
 _TYPE_CODES = frozenset("bBhHiIqQfd?")
@@ -222,6 +227,15 @@ def _pitch_from_specific_force(accel_W: np.ndarray, yaw: np.ndarray) -> tuple[np
     return pitch, implied_roll
 
 
+def _rate_of_change(t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Time derivative of (T, k) values: Savitzky-Golay over RATE_WINDOW_S (near-uniform stamps)."""
+    dt = float(np.median(np.diff(t)))
+    window = max(5, int(round(RATE_WINDOW_S / dt)) | 1)
+    if values.shape[0] < window:
+        return np.gradient(values, t, axis=0)
+    return savgol_filter(values, window, 2, deriv=1, delta=dt, axis=0)
+
+
 def _columns(event: UsdEvent, names: Sequence[str]) -> np.ndarray:
     return np.column_stack([event.column(name) for name in names])
 
@@ -299,23 +313,26 @@ def convert_crazyflie_usd(
     if event.has("stateEstimate.pitch"):
         pitch = -np.radians(event.column("stateEstimate.pitch"))
         taken.append("pitch: -stateEstimate.pitch [deg] (legacy sign)")
-    elif accel_W is not None:
-        pitch, implied_roll = _pitch_from_specific_force(accel_W, yaw)
+    elif accel_W is not None or event.has(*velocity_names):
+        if accel_W is not None:
+            tilt_accel, source = accel_W, "the logged acceleration"
+        else:
+            tilt_accel = _rate_of_change(t, _columns(event, velocity_names))
+            source = f"the rate of change of the logged velocity (Savitzky-Golay, {RATE_WINDOW_S:g} s window)"
+        pitch, implied_roll = _pitch_from_specific_force(tilt_accel, yaw)
         rms = float(np.degrees(np.sqrt(np.nanmean((implied_roll - roll) ** 2))))
         unknown = int(np.count_nonzero(np.isnan(pitch)))
         taken.append(
             "pitch NOT LOGGED, derived: atan2(f_x', f_z') of the specific force f = a + g e_z rotated by "
-            "-yaw into the heading frame (rotor drag and accelerometer misalignment neglected); "
-            f"the roll derived the same way differs from the logged roll by {rms:.2f} deg RMS; "
+            f"-yaw into the heading frame, a from {source} (rotor drag and accelerometer misalignment "
+            f"neglected); the roll derived the same way differs from the logged roll by {rms:.2f} deg RMS; "
             f"left empty at {unknown} samples where f_z < g/2 (free fall, impacts)"
         )
-        warnings.append(
-            f"pitch is not logged: derived from the acceleration and yaw (roll check: {rms:.2f} deg RMS)"
-        )
+        warnings.append(f"pitch is not logged: derived from {source} and yaw (roll check: {rms:.2f} deg RMS)")
     else:
         raise ConversionError(
             f"{path}: stateEstimate.pitch is not logged and cannot be derived without "
-            "stateEstimate.ax/ay/az: log one of them"
+            "stateEstimate.ax/ay/az or vx/vy/vz: log one of them"
         )
     builder.put(["roll", "pitch", "yaw"], np.column_stack([roll, pitch, yaw]))
 
