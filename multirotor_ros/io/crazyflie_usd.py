@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import savgol_filter
 
+from multirotor_ros.io.derive import SavitzkyGolay, differentiate
 from multirotor_ros.io.flight_log import FlightLog
 from multirotor_ros.io.log_builder import ConversionError, LogBuilder
 from multirotor_ros.io.resample import sort_unique
@@ -60,9 +60,6 @@ CRAZYFLIE_GRAVITY_M_S2 = 9.81
 MOTOR_COMMAND_FULL_SCALE = 65535.0
 # Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
 HELD_HEADING_STD_DEG = 2.6
-# Window of the velocity's derivative when the acceleration is not logged: several 10 ms samples of
-# estimator noise, short beside the attitude changes of a flight (0.2 s).
-RATE_WINDOW_S = 0.2
 _PREAMBLE = struct.Struct("<BHH")
 _RECORD_HEADERS = {1: (struct.Struct("<HI"), 1e-3), 2: (struct.Struct("<HQ"), 1e-6)}
 _TYPE_CODES = frozenset("bBhHiIqQfd?")
@@ -227,15 +224,6 @@ def _pitch_from_specific_force(accel_W: np.ndarray, yaw: np.ndarray) -> tuple[np
     return pitch, implied_roll
 
 
-def _rate_of_change(t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Time derivative of (T, k) values: Savitzky-Golay over RATE_WINDOW_S (near-uniform stamps)."""
-    dt = float(np.median(np.diff(t)))
-    window = max(5, int(round(RATE_WINDOW_S / dt)) | 1)
-    if values.shape[0] < window:
-        return np.gradient(values, t, axis=0)
-    return savgol_filter(values, window, 2, deriv=1, delta=dt, axis=0)
-
-
 def _columns(event: UsdEvent, names: Sequence[str]) -> np.ndarray:
     return np.column_stack([event.column(name) for name in names])
 
@@ -317,8 +305,10 @@ def convert_crazyflie_usd(
         if accel_W is not None:
             tilt_accel, source = accel_W, "the logged acceleration"
         else:
-            tilt_accel = _rate_of_change(t, _columns(event, velocity_names))
-            source = f"the rate of change of the logged velocity (Savitzky-Golay, {RATE_WINDOW_S:g} s window)"
+            tilt_accel, how = differentiate(
+                t, _columns(event, velocity_names), 1, "velocity", SavitzkyGolay()
+            )
+            source = f"the rate of change of the logged velocity ({how})"
         pitch, implied_roll = _pitch_from_specific_force(tilt_accel, yaw)
         rms = float(np.degrees(np.sqrt(np.nanmean((implied_roll - roll) ** 2))))
         unknown = int(np.count_nonzero(np.isnan(pitch)))

@@ -74,9 +74,10 @@ def _source_samples(t: FloatArray, values: FloatArray) -> tuple[FloatArray, Floa
     return t[rows], values[rows]
 
 
-def _differentiate(
+def differentiate(
     t: FloatArray, values: FloatArray, order: int, source: str, flt: SavitzkyGolay
 ) -> tuple[FloatArray, str]:
+    """The ``order``-th time derivative of (T, k) ``values`` at ``t`` (module docstring), and its note."""
     ts, xs = _source_samples(t, values)
     if ts.size < 2:
         raise FlightLogError(f"cannot differentiate {source}: fewer than 2 measured rows")
@@ -152,7 +153,7 @@ def derive_motion(log: FlightLog, filter: SavitzkyGolay | None = None) -> Derive
         lower = [g for g in measured if _ORDER[g] < order]
         if lower:
             source = max(lower, key=_ORDER.__getitem__)
-            results[target], notes[target] = _differentiate(
+            results[target], notes[target] = differentiate(
                 log.t, measured[source], order - _ORDER[source], source, flt
             )
         else:
