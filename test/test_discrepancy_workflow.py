@@ -291,16 +291,11 @@ def test_a_fault_with_no_flight_before_its_onset_is_not_significant_and_an_onset
 
     samples = load_samples(flight("x8_octorotor", duration_s=8.0, seed=5), load_airframe("x8_octorotor"))
     first = float(samples.t[samples.valid][0])
-    why = _onset_without_flight_before(
-        "actuator_fault", {"t_fault_s": first + 0.05}, samples, DiscrepancySettings()
-    )
+    why = _onset_without_flight_before({"t_fault_s": first + 0.05}, samples, DiscrepancySettings())
     assert why is not None and why.startswith("not significant: its onset") and "rotor_effectiveness" in why
-    assert (
-        _onset_without_flight_before("actuator_fault", {"t_fault_s": 5.0}, samples, DiscrepancySettings())
-        is None
-    )
-    assert _onset_without_flight_before("rotor_drag", {"k_h": 1e-4}, samples, DiscrepancySettings()) is None
-    assert _regime_text("actuator_fault", {"t_fault_s": 40.0}, []) == "explains nothing"
+    assert _onset_without_flight_before({"t_fault_s": 5.0}, samples, DiscrepancySettings()) is None
+    assert _onset_without_flight_before({"k_h": 1e-4}, samples, DiscrepancySettings()) is None
+    assert _regime_text({"t_fault_s": 40.0}, []) == "explains nothing"
 
 
 def test_a_parameter_on_its_bound_is_reported_as_a_bound_without_a_std():

@@ -755,7 +755,8 @@ def _score(
         and score > 0
         and peak >= settings.negligible_acceleration_m_s2
     )
-    early_onset = _onset_without_flight_before(effect_id, trial.parameters(effect_id), samples, settings)
+    parameters = trial.parameters(effect_id)
+    early_onset = _onset_without_flight_before(parameters, samples, settings)
     significant = significant and early_onset is None
     bias_like = False
     if significant and peak < settings.bias_check_below_m_s2:
@@ -769,19 +770,16 @@ def _score(
     candidate = Candidate(
         effect=effect_id,
         round=round_number,
-        parameters=trial.parameters(effect_id),
+        parameters=parameters,
         std=_std_unless_at_bound(
-            workflow.airframe,
-            [(effect_id, name) for name in names],
-            trial.parameters(effect_id),
-            trial.fit.std,
+            workflow.airframe, [(effect_id, name) for name in names], parameters, trial.fit.std
         )[0],
         mse_after=per_axis(np.mean(trial.heldout[valid] ** 2, axis=0)),
         score=score,
         z_statistic=z_stat,
         peak_contribution_m_s2=peak,
         significant=significant,
-        regime=_regime_text(effect_id, trial.parameters(effect_id), where_gain if score > 0 else []),
+        regime=_regime_text(parameters, where_gain if score > 0 else []),
         not_identifiable=not_identifiable,
     )
     candidate.verdict = early_onset or _verdict(candidate, bias_like, settings)
@@ -789,7 +787,7 @@ def _score(
 
 
 def _onset_without_flight_before(
-    effect_id: str, parameters: Mapping[str, float], samples: FlightSamples, settings: DiscrepancySettings
+    parameters: Mapping[str, float], samples: FlightSamples, settings: DiscrepancySettings
 ) -> str | None:
     """Why a fault onset with too little usable flight before it is not significant, or None."""
     onset = parameters.get("t_fault_s")
@@ -806,7 +804,7 @@ def _onset_without_flight_before(
     )
 
 
-def _regime_text(effect_id: str, parameters: Mapping[str, float], where: Sequence[Any]) -> str:
+def _regime_text(parameters: Mapping[str, float], where: Sequence[Any]) -> str:
     """Where the candidate explains most; an effect with an onset says when it began first."""
     if not where:
         return "explains nothing"

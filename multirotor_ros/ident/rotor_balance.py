@@ -206,11 +206,15 @@ def rotor_baseline(balances: Sequence[FlightBalance]) -> tuple[RotorBaseline, li
     ), warnings
 
 
+def cw_drag_ratio(airframe: Airframe, baseline_thrust_N: FloatArray) -> float:
+    """c_cw / c_ccw that balances the baseline's yaw: its ccw rotors' thrust over its cw rotors'."""
+    spin = airframe.spin_signs
+    return float(baseline_thrust_N[spin < 0].sum() / baseline_thrust_N[spin > 0].sum())
+
+
 def yaw_weights(airframe: Airframe, baseline_thrust_N: FloatArray) -> FloatArray:
     """c_k up to scale: the spin sign, with the cw rotors' ratio set so that the baseline balances yaw."""
-    spin = airframe.spin_signs
-    ccw, cw = baseline_thrust_N[spin < 0].sum(), baseline_thrust_N[spin > 0].sum()
-    return np.where(spin < 0, -1.0, ccw / cw)
+    return np.where(airframe.spin_signs < 0, -1.0, cw_drag_ratio(airframe, baseline_thrust_N))
 
 
 def balance_rows(airframe: Airframe, baseline_thrust_N: FloatArray) -> FloatArray:
@@ -238,14 +242,13 @@ class BaselineState:
     @classmethod
     def of(cls, airframe: Airframe, thrust_N: FloatArray) -> BaselineState:
         """Weight, centre of gravity and yaw ratio from mean rotor thrusts."""
-        rows = balance_rows(airframe, thrust_N)
+        positions = airframe.rotor_positions_m
         weight = float(thrust_N.sum())
-        moments = rows[1:3] @ thrust_N
         return cls(
             weight,
             weight / GRAVITY_M_S2,
-            (float(moments[1] / weight), float(moments[0] / weight)),
-            float(rows[3].max()),
+            (float(positions[:, 0] @ thrust_N / weight), float(positions[:, 1] @ thrust_N / weight)),
+            cw_drag_ratio(airframe, thrust_N),
         )
 
     def as_vector(self) -> FloatArray:
@@ -397,9 +400,7 @@ def diagnose(airframe: Airframe, baseline: RotorBaseline, suspect: FlightBalance
     explanations["none"] = Explanation("none", {}, {}, chi2_none, airframe.n_rotors)
 
     weakened = flagged or [int(np.argmin(effectiveness)) + 1]
-    columns = np.zeros((airframe.n_rotors, len(weakened)))
-    for j, k in enumerate(weakened):
-        columns[k - 1, j] = 1.0
+    columns = np.eye(airframe.n_rotors)[:, [k - 1 for k in weakened]]
     _, _, chi2_rotor = _weighted_fit(columns, change, sigma)
     explanations["rotor_effectiveness"] = Explanation(
         "rotor_effectiveness",
