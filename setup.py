@@ -7,6 +7,8 @@ from glob import glob
 from pathlib import Path
 
 from setuptools import find_packages, setup
+from setuptools.command.develop import develop
+from setuptools.command.install_scripts import install_scripts
 
 HERE = Path(__file__).resolve().parent
 # scripts/ament_layout.py also makes the editable venv's layout: one definition of the launchers.
@@ -28,16 +30,45 @@ _manifest = ElementTree.parse(HERE / "package.xml").getroot()
 assert _manifest.findtext("name") == PACKAGE, "package.xml <name> must be multirotor_ros"
 NODES = ament_layout.node_executables(HERE)
 
-cmdclass = {}
+
+class InstallScriptsWithLaunchers(install_scripts):
+    """``setup.py install`` (colcon): the launchers beside the console scripts in lib/multirotor_ros.
+
+    setup.cfg sends the console scripts there, where ``ros2 run`` looks, but they are named
+    ``multirotor-NAME``: ``lib/multirotor_ros/NAME`` must exist too. A wheel's build runs this command
+    as well, into its ``.data/scripts`` (bin/ once installed), where no launcher belongs.
+    """
+
+    def run(self) -> None:
+        super().run()
+        directory = Path(self.install_dir)
+        if ament_layout.is_ros_run_directory(directory):
+            self.outfiles += [str(p) for p in ament_layout.write_launchers(directory, NODES)]
+
+
+class DevelopWithLaunchers(develop):
+    """``setup.py develop`` (``colcon build --symlink-install``): the same launchers beside the scripts.
+
+    Only setuptools < 80 has this develop (Ubuntu 24.04, ROS 2 Jazzy's platform, has 68); the later one
+    is a wrapper around pip that never calls this method (see setup.cfg).
+    """
+
+    def install_wrapper_scripts(self, dist: object) -> None:
+        super().install_wrapper_scripts(dist)
+        script_dir = getattr(self, "script_dir", None)
+        if script_dir and ament_layout.is_ros_run_directory(Path(script_dir)):
+            ament_layout.write_launchers(Path(script_dir), NODES)
+
+
+cmdclass = {"install_scripts": InstallScriptsWithLaunchers, "develop": DevelopWithLaunchers}
 if bdist_wheel is not None:
 
     class BdistWheelWithLaunchers(bdist_wheel):
         """A wheel that also carries ``lib/multirotor_ros/<executable>`` for ``ros2 run``.
 
         A wheel's console scripts always land in ``<prefix>/bin`` (setup.cfg's install_scripts does
-        not apply to wheels), so small launchers are added as data_files for wheels only. colcon runs
-        ``setup.py install``/``develop``, where setup.cfg already puts the console scripts in
-        lib/multirotor_ros: adding the launchers there too would install two files at one path.
+        not apply to wheels), so the launchers are added as data_files for wheels only; colcon's
+        ``setup.py install``/``develop`` writes them itself (the two classes above).
         """
 
         def run(self) -> None:
@@ -58,7 +89,9 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/config/missions", sorted(glob("config/missions/*.csv"))),
         (f"share/{PACKAGE}/launch", sorted(glob("launch/*.py"))),
+        (f"share/{PACKAGE}/rviz", sorted(glob("rviz/*.rviz"))),
     ],
     python_requires=">=3.12",
     # rclpy and the message packages are not here: they come from a ROS 2 Jazzy install (package.xml) or
@@ -100,7 +133,11 @@ setup(
     license=_manifest.findtext("license"),
     cmdclass=cmdclass,
     entry_points={
-        "console_scripts": [f"{name} = {PACKAGE}.nodes.{name}:main" for name in NODES]
+        # Prefixed (multirotor-simulator): generic names in an environment's bin/ would clash with other
+        # packages'. `ros2 run multirotor_ros simulator` finds the launchers of scripts/ament_layout.py.
+        "console_scripts": [
+            f"{ament_layout.console_script_name(name)} = {PACKAGE}.nodes.{name}:main" for name in NODES
+        ]
         + [f"multirotor = {PACKAGE}.cli:main"],
     },
 )

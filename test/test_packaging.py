@@ -9,6 +9,7 @@ import ast
 import configparser
 import importlib.metadata
 import importlib.util
+import os
 import re
 import shutil
 import subprocess
@@ -68,13 +69,20 @@ def _imports(path: Path) -> list[tuple[str, int]]:
     return found
 
 
-@pytest.fixture(scope="module")
-def wheel(tmp_path_factory) -> zipfile.ZipFile:
-    source = tmp_path_factory.mktemp("wheel_source")
+def _copy_sources(source: Path) -> Path:
+    """The files setup.py reads, copied (concurrent runs must not share a build/ directory)."""
+    source.mkdir(parents=True, exist_ok=True)
     for name in ("setup.py", "setup.cfg", "package.xml", "MANIFEST.in"):
         shutil.copy2(REPOSITORY / name, source / name)
-    for name in ("resource", "config", "launch", "scripts", "multirotor_ros"):
-        shutil.copytree(REPOSITORY / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("resource", "config", "launch", "rviz", "scripts", "multirotor_ros"):
+        if (REPOSITORY / name).is_dir():
+            shutil.copytree(REPOSITORY / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    return source
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> zipfile.ZipFile:
+    source = _copy_sources(tmp_path_factory.mktemp("wheel_source"))
     out = tmp_path_factory.mktemp("wheel")
     result = subprocess.run(
         [
@@ -173,7 +181,11 @@ def test_wheel_console_scripts_are_the_node_executables_and_multirotor(wheel):
     entry_points.read_string(
         wheel.read(f"multirotor_ros-{multirotor_ros.__version__}.dist-info/entry_points.txt").decode()
     )
-    expected = {name: f"multirotor_ros.nodes.{name}:main" for name in NODE_EXECUTABLES}
+    # Every name the package puts on PATH carries its prefix: no `simulator` clashing with another package's.
+    expected = {
+        f"multirotor-{name.replace('_', '-')}": f"multirotor_ros.nodes.{name}:main"
+        for name in NODE_EXECUTABLES
+    }
     expected["multirotor"] = "multirotor_ros.cli:main"
     assert dict(entry_points["console_scripts"]) == expected
 
@@ -182,14 +194,22 @@ def test_wheel_installs_the_ament_layout_under_the_prefix(wheel):
     data = _wheel_data(wheel)
     assert "share/ament_index/resource_index/packages/multirotor_ros" in data
     assert wheel.read(data["share/multirotor_ros/package.xml"]) == (REPOSITORY / "package.xml").read_bytes()
-    shipped_configs = {p for p in data if p.startswith("share/multirotor_ros/config/")}
-    assert shipped_configs == {
-        f"share/multirotor_ros/config/{p.name}" for p in (REPOSITORY / "config").glob("*.yaml")
-    }
-    shipped_launch = {p for p in data if p.startswith("share/multirotor_ros/launch/")}
-    assert shipped_launch == {
-        f"share/multirotor_ros/launch/{p.name}" for p in (REPOSITORY / "launch").glob("*.py")
-    }
+    for directory, pattern in [
+        ("config", "*.yaml"),
+        ("config/missions", "*.csv"),
+        ("launch", "*.py"),
+        ("rviz", "*.rviz"),
+    ]:
+        shipped = {
+            p
+            for p in data
+            if p.startswith(f"share/multirotor_ros/{directory}/")
+            and "/" not in p.removeprefix(f"share/multirotor_ros/{directory}/")
+        }
+        assert shipped == {
+            f"share/multirotor_ros/{directory}/{p.name}" for p in (REPOSITORY / directory).glob(pattern)
+        }
+    assert "share/multirotor_ros/config/missions/square.csv" in data
     launchers = {
         p.removeprefix("lib/multirotor_ros/"): i
         for p, i in data.items()
@@ -211,6 +231,61 @@ def test_colcon_installs_console_scripts_where_ros2_run_looks():
     assert (REPOSITORY / "resource" / "multirotor_ros").is_file()
 
 
+def test_colcons_setup_py_install_puts_a_launcher_beside_each_prefixed_console_script(tmp_path):
+    """The command colcon-core runs for `colcon build` (task/python/build.py), offline, into a prefix."""
+    source = _copy_sources(tmp_path / "source")
+    build, prefix = tmp_path / "build", tmp_path / "install"
+    build.mkdir()
+    result = subprocess.run(
+        [
+            sys.executable,
+            "setup.py",
+            "egg_info",
+            "--egg-base",
+            str(build),
+            "build",
+            "--build-base",
+            str(build / "build"),
+            "install",
+            "--prefix",
+            str(prefix),
+            "--record",
+            str(build / "install.log"),
+            "--single-version-externally-managed",
+        ],
+        cwd=source,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert result.returncode == 0, (
+        f"setup.py install failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+    )
+    lib = prefix / "lib" / "multirotor_ros"
+    scripts = {ament_layout.console_script_name(name) for name in NODE_EXECUTABLES}
+    assert {p.name for p in lib.iterdir()} == set(NODE_EXECUTABLES) | scripts | {"multirotor"}
+    assert not (prefix / "bin").exists()
+    for name in NODE_EXECUTABLES:
+        assert (lib / name).read_text() == ament_layout.launcher_text(name)
+        assert (lib / name).stat().st_mode & 0o111 == 0o111
+    recorded = set((build / "install.log").read_text().splitlines())
+    assert {str(lib / name) for name in NODE_EXECUTABLES} <= recorded  # colcon removes what it recorded
+    # `ros2 run multirotor_ros mission` runs this launcher: it reaches the node through multirotor-mission.
+    missing = tmp_path / "no_such_mission.csv"
+    (site_packages,) = prefix.glob("lib/python3*/site-packages")
+    ran = subprocess.run(
+        [str(lib / "mission"), "--ros-args", "-p", f"mission_file:={missing}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        # What sourcing colcon's install/setup.bash does: the installed package first.
+        env=dict(
+            os.environ, PYTHONPATH=os.pathsep.join([str(site_packages), os.environ.get("PYTHONPATH", "")])
+        ),
+    )
+    assert ran.returncode == 2 and f"{missing}: cannot read" in ran.stderr, ran.stderr[-2000:]
+
+
 def test_editable_layout_lets_ament_find_package_and_executables(tmp_path, monkeypatch):
     ament_index = pytest.importorskip("ament_index_python")
     result = subprocess.run([sys.executable, str(REPOSITORY / "scripts" / "ament_layout.py"), str(tmp_path)])
@@ -219,7 +294,8 @@ def test_editable_layout_lets_ament_find_package_and_executables(tmp_path, monke
     assert Path(ament_index.get_package_prefix("multirotor_ros")) == tmp_path
     share = Path(ament_index.get_package_share_directory("multirotor_ros"))
     assert (share / "package.xml").resolve() == REPOSITORY / "package.xml"
-    assert (share / "config").resolve() == REPOSITORY / "config"
+    for directory in ("config", "launch", "rviz"):
+        assert (share / directory).resolve() == REPOSITORY / directory
     # ros2 run's rule: an executable file in <prefix>/lib/<package>.
     executables = {
         p.name for p in (tmp_path / "lib" / "multirotor_ros").iterdir() if p.stat().st_mode & 0o111
@@ -227,10 +303,11 @@ def test_editable_layout_lets_ament_find_package_and_executables(tmp_path, monke
     assert executables == set(NODE_EXECUTABLES)
 
 
-def test_launcher_hands_over_to_the_console_script_of_its_prefix(tmp_path):
-    (launcher,) = ament_layout.write_launchers(tmp_path / "lib" / "multirotor_ros", ("simulator",))
-    console_script = tmp_path / "bin" / "simulator"
-    console_script.parent.mkdir()
+@pytest.mark.parametrize("scripts_in", ["bin", "lib/multirotor_ros"], ids=["pip", "colcon"])
+def test_launcher_hands_over_to_the_prefixed_console_script_of_its_install(tmp_path, scripts_in):
+    (launcher,) = ament_layout.write_launchers(tmp_path / "lib" / "multirotor_ros", ("mavlink_bridge",))
+    console_script = tmp_path / scripts_in / "multirotor-mavlink-bridge"
+    console_script.parent.mkdir(parents=True, exist_ok=True)
     console_script.write_text('#!/bin/sh\necho "console script: $*"\n')
     console_script.chmod(0o755)
     result = subprocess.run(

@@ -146,6 +146,7 @@ class RotorReport:
     effectiveness: float  # estimated remaining share of thrust [0..1]
     message: str
     values: dict[str, str]
+    summary: str  # the message without times and asides: what a log line says of it
 
 
 def rotor_reports(
@@ -169,14 +170,9 @@ def rotor_reports(
             else "waiting for data"
         )
         return [
-            RotorReport(
-                f"rotor_{k + 1}",
-                "OK",
-                1.0,
-                f"rotor {k + 1}: no verdict yet, {why}",
-                {"effectiveness": "1.00"},
-            )
+            RotorReport(f"rotor_{k + 1}", "OK", 1.0, message, {"effectiveness": "1.00"}, message)
             for k in range(n_rotors)
+            for message in [f"rotor {k + 1}: no verdict yet, {why}"]
         ]
     reports = []
     faulty = int(output.rotor[vehicle]) if output.alarm[vehicle] else -1
@@ -193,18 +189,18 @@ def rotor_reports(
             onset = float(output.onset_t[vehicle]) + clock_offset_s
             level: Level = "ERROR" if effectiveness < error_below_effectiveness else "WARN"
             kind = "stopped or lost its propeller" if effectiveness < 0.1 else "is losing thrust"
-            message = (
-                f"rotor {k + 1} {kind}: about {100 * effectiveness:.0f} % of its thrust left "
-                f"(fault detected at t = {onset:.2f} s)"
-            )
+            left = f"about {100 * effectiveness:.0f} % of its thrust left"
+            summary = f"rotor {k + 1} {kind}, {left}"
+            message = f"rotor {k + 1} {kind}: {left} (fault detected at t = {onset:.2f} s)"
             partner = int(partner_of[k])
             if partner >= 0 and output.partner_ambiguous[vehicle]:
+                summary += f", or coaxial rotor {partner + 1}"
                 message += (
                     f"; its coaxial partner rotor {partner + 1} fits almost as well (only the yaw torque "
                     "tells them apart), so check both"
                 )
             values["detected_at_s"] = f"{onset:.3f}"
-            reports.append(RotorReport(f"rotor_{k + 1}", level, effectiveness, message, values))
+            reports.append(RotorReport(f"rotor_{k + 1}", level, effectiveness, message, values, summary))
             continue
         if faulty >= 0:
             message = f"rotor {k + 1}: no fault of its own (rotor {faulty + 1} is faulty)"
@@ -213,5 +209,5 @@ def rotor_reports(
             message = f"rotor {k + 1}: OK, but its residual is at {share:.0f} % of the alarm threshold"
         else:
             message = f"rotor {k + 1}: OK"
-        reports.append(RotorReport(f"rotor_{k + 1}", "OK", 1.0, message, values))
+        reports.append(RotorReport(f"rotor_{k + 1}", "OK", 1.0, message, values, message))
     return reports

@@ -133,12 +133,13 @@ class InputWatch:
             clock = self._clock_note()
             what += f", nor any other input{', and ' + clock if clock else ''}"
         if watched.resent_since_heard:
+            # As a lockstep simulator waits for motor_speed_cmd: look at the one it waits for.
             return (
                 f"{what}; only its last message came again ({watched.resent_since_heard} times): its "
-                "publisher is alive and waits (as a lockstep simulator waits for motor_speed_cmd)"
+                "publisher is alive and waits"
             )
         if coming:
-            return f"{what}: its publisher may be stalled; no identification or diagnosis until it is back"
+            return f"{what}: its publisher may be stalled; no diagnosis until it is back"
         return f"{what}: their publishers may be stalled"
 
     def status(self) -> InputsStatus:

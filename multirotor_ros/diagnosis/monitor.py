@@ -205,7 +205,9 @@ class FlightMonitor:
         detection: DetectionSettings | None = None,
         settings: MonitorSettings | None = None,
         record: FlightRecord | None = None,
+        resume: bool = True,
     ):
+        """``record``: where what is used goes; ``resume``: whether to start from what it holds."""
         self.airframe = airframe
         self.settings = settings or MonitorSettings()
         self.limits = StateLimits()
@@ -231,8 +233,9 @@ class FlightMonitor:
         self._held: list[tuple[_Sample, StepResult]] = []  # held by the innovation gate, undecided
         self._was_resting = False
         self._warnings: list[str] = []  # said with the next result
+        self._first_t: float | None = None  # t of the first sample taken: time 0 of since_start_s
         self.notes: list[str] = []
-        if record is not None:
+        if record is not None and resume:
             self._resume(record)
 
     # ------------------------------------------------------------------ resume and state
@@ -292,7 +295,7 @@ class FlightMonitor:
         """
         if self._speeds and stamp_ns <= self._speeds[-1][0]:
             kind = "duplicated stamp" if stamp_ns == self._speeds[-1][0] else "stamp out of order"
-            return Refused(kind, f"motor_speeds stamp {stamp_ns} ns, previous {self._speeds[-1][0]} ns")
+            return Refused(kind, self._stamp_detail("motor_speeds", stamp_ns, self._speeds[-1][0]))
         omega = np.asarray(speeds, dtype=float).copy()
         highest = SPEED_REPORT_MARGIN * self.airframe.rotor_speed_max_rad_s
         if omega.shape != (self.airframe.n_rotors,) or not np.all((omega >= 0) & (omega <= highest)):
@@ -372,7 +375,7 @@ class FlightMonitor:
         """
         if self._last_state_ns is not None and stamp_ns <= self._last_state_ns:
             kind = "duplicated stamp" if stamp_ns == self._last_state_ns else "stamp out of order"
-            return Refused(kind, f"state stamp {stamp_ns} ns, previous {self._last_state_ns} ns")
+            return Refused(kind, self._stamp_detail("state", stamp_ns, self._last_state_ns))
         values = [np.asarray(x, dtype=float) for x in (p_WB_W, v_WB_W, q_WB, w_WB_B)]
         if a_W is not None:
             values.append(np.asarray(a_W, dtype=float))
@@ -380,6 +383,9 @@ class FlightMonitor:
         if refusal is not None:
             return refusal
         self._warnings += [] if self._origin_ns is not None else self._start_clock(stamp_ns)
+        assert self._origin_ns is not None
+        if self._first_t is None:
+            self._first_t = (stamp_ns - self._origin_ns) * 1e-9
         self._last_state_ns = stamp_ns
         q_WB = values[2] / np.linalg.norm(values[2])
         self._last_accepted = _Accepted(stamp_ns, values[0], values[1], q_WB, values[3])
@@ -389,7 +395,6 @@ class FlightMonitor:
         # on average (8 and 12 ms apart) rather than one every 12 ms.
         period_ns = round(NS / self.settings.sample_rate_hz)
         self._next_due_ns = max(self._next_due_ns + period_ns, stamp_ns + period_ns // 2)
-        assert self._origin_ns is not None
         state = StateBatch(
             t=np.array([(stamp_ns - self._origin_ns) * 1e-9]),
             p_WB_W=values[0][None],
@@ -404,7 +409,7 @@ class FlightMonitor:
 
     def _implausible(self, stamp_ns: int, values: list[FloatArray]) -> Refused | None:
         """Why a state (p, v, q, w[, a]) is not one a multirotor can be in, or None."""
-        what = f"state at {stamp_ns} ns"
+        what = self._at("state", stamp_ns)
         refusal = self.limits.check(
             values[0], values[1], values[3], values[4] if len(values) > 4 else None, what=what
         )
@@ -479,7 +484,7 @@ class FlightMonitor:
         if omega is None:
             result.skipped = "no recent motor_speeds"
             result.skipped_detail = (
-                f"state at {waiting.stamp_ns} ns has no rotor speeds of its time (within "
+                f"{self._at('state', waiting.stamp_ns)} has no rotor speeds of its time (within "
                 f"{self.settings.motor_speed_max_age_s:g} s, none missing after them)"
             )
             return [result]
@@ -488,8 +493,8 @@ class FlightMonitor:
         if support is not None:
             if not self._was_resting:
                 result.events.append(
-                    f"resting at t = {sample.stamp_ns * 1e-9:.2f} s ({support}): "
-                    "no identification or detection until it flies"
+                    f"resting at t = {self.since_start_s(sample.t):.2f} s ({support}): "
+                    "nothing learnt until it flies"
                 )
             self._was_resting = True
             result.skipped = "resting"
@@ -504,8 +509,9 @@ class FlightMonitor:
         if verdict == "held":
             result.skipped = "inconsistent with the model"
             result.skipped_detail = (
-                f"state at {sample.stamp_ns} ns surprises the observer by {format_vector(innovation[0])} "
-                "stopped rotors (x, y, z world; x, y, z body): held back as missing data"
+                f"{self._at('state', sample.stamp_ns)} surprises the observer by "
+                f"{format_vector(innovation[0])} stopped rotors (x, y, z world; x, y, z body): held back as "
+                "missing data"
             )
             self._held.append((sample, result))
             return []
@@ -545,15 +551,13 @@ class FlightMonitor:
             self._hole_before_next = False
         elif last_ns is not None:
             self._hole_before_next |= self._is_hole(span_s)
-        restarted = "observer restarted, residual noise learnt again before any alarm"
+        restarted = "observer restarted, noise learnt again before any alarm"
+        t_s = self.since_start_s(sample.t)
         if self._was_resting:
-            flying = f"flying from t = {sample.stamp_ns * 1e-9:.2f} s"
+            flying = f"flying from t = {t_s:.2f} s"
             result.events.append(f"{flying}: {restarted}" if gap else flying)
         elif gap:
-            result.warnings.append(
-                f"gap of {span_s:.3f} s in the data before t = {sample.stamp_ns * 1e-9:.3f} s: "
-                f"{restarted}; no derivative taken across it"
-            )
+            result.warnings.append(f"gap of {span_s:.3f} s in the data before t = {t_s:.2f} s: {restarted}")
         self._was_resting = False
         return gap
 
@@ -585,9 +589,8 @@ class FlightMonitor:
             self._origin_ns = stamp_ns
             record.stamp_origin_ns = stamp_ns
             return [
-                f"stamps restart before the end of the record ({stamp_ns} <= {record.last_stamp_ns} ns): "
-                "the clock "
-                "went back (a restarted simulator?); new record segment, refit window cleared, estimates kept"
+                "the clock went back before the record's end (a restarted simulator?): new record segment, "
+                "refit window cleared"
             ]
         if record.stamp_origin_ns is None:
             record.stamp_origin_ns = stamp_ns
@@ -650,6 +653,27 @@ class FlightMonitor:
         What the node publishes on ``rotor_effectiveness``; see ``RotorDiagnoser.effectiveness``.
         """
         return self.diagnoser.effectiveness()
+
+    def _at(self, what: str, stamp_ns: int) -> str:
+        """``what`` and the time of its stamp in the log's words (since_start_s), once there is a time."""
+        if self._origin_ns is None:
+            return what
+        return f"{what} at t = {self.since_start_s((stamp_ns - self._origin_ns) * 1e-9):.3f} s"
+
+    def _stamp_detail(self, what: str, stamp_ns: int, previous_ns: int) -> str:
+        """Words for a stamp that repeats or goes back: how far behind the previous one it is."""
+        if stamp_ns == previous_ns:
+            return f"{self._at(what, stamp_ns)}: stamped as the previous one"
+        behind_ms = (previous_ns - stamp_ns) * 1e-6
+        return f"{self._at(what, stamp_ns)}: stamped {behind_ms:.3f} ms before the previous one"
+
+    def since_start_s(self, t: float) -> float:
+        """[s] a time of the monitor's (``t`` of results, refits, detections) since its first sample.
+
+        How the identifier's log says times: seconds of the messages' clock since the first sample this
+        monitor took (a resumed record's origin and a restart() of the time line do not move it).
+        """
+        return t - (self._first_t or 0.0)
 
     @property
     def clock_offset_s(self) -> float:

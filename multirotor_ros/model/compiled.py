@@ -27,12 +27,14 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import inspect
+import math
 import os
 import sys
 import tempfile
 import textwrap
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
@@ -49,6 +51,9 @@ from multirotor_ros.model.effects import (
 )
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
+
+if TYPE_CHECKING:
+    from multirotor_ros.model.integrator import CrashLatch
 
 # Vehicles per chunk: 64 lanes keep a chunk's working arrays (about 60 kB for an X8) in L1/L2 and give
 # the vector loops long runs; 10,000 vehicles make 157 chunks to share between the threads.
@@ -158,29 +163,90 @@ def _rk4_stage_update(first, h, lanes, rows, xs, ks, acc, ys):
             ys[row + lane] = xs[row + lane] + h * k
 
 
-@_lane
-def _rk4_step_end(dt, lanes, rows, use_ground, ground_height, xs, ks, acc):
-    """After RK4 stage 4: the new state in ``xs``, unit quaternions, ground contact.
+# A chunk's ground-contact rows (see _rk4_step_end): the crash latch, and of a crash its falling speed
+# and its step.
+_CRASHED, _TOUCHDOWN, _CRASH_STEP = 0, L, 2 * L
+CONTACT_ROWS = 3
 
-    Returns whether some lane became non-finite: a NaN or an infinity gives v - v != 0 (inf - inf is
-    NaN), one flag for the chunk, its lanes looked at only when it is raised.
+
+@_lane
+def _rk4_lane_end(sixth_dt, lane, xs, ks, acc):
+    """Rows 0..12 of one lane after RK4 stage 4, unit quaternion; whether a value became non-finite.
+
+    A NaN or an infinity gives v - v != 0 (inf - inf is NaN).
     """
-    sixth_dt = dt / 6
+    broken = False
+    for row in range(0, S.ROTORS_START * L, L):
+        value = xs[row + lane] + sixth_dt * (acc[row + lane] + ks[row + lane])
+        xs[row + lane] = value
+        broken |= (value - value) != 0.0
+    qw, qx, qy, qz = xs[_Q_W + lane], xs[_Q_X + lane], xs[_Q_Y + lane], xs[_Q_Z + lane]
+    norm = np.sqrt(qw**2 + qx**2 + qy**2 + qz**2)
+    for row in range(_Q_W, _Q_Z + 1, L):
+        xs[row + lane] /= norm
+    return broken
+
+
+@_jit
+def _rk4_end_on_ground(sixth_dt, lanes, step, ground, xs, ks, acc, contact):
+    """:func:`_rk4_step_end` of a chunk where some lane may touch the ground; whether one broke.
+
+    Compiled apart, not inlined: inside the step loop its code, which a chunk in the air never runs,
+    slowed the steps of such a chunk by 2-5 %; a chunk on the ground pays a call per step instead.
+    """
+    _, ground_height, crash_speed, cos_crash_tilt = ground
     broken = False
     for lane in range(lanes):
-        for row in range(0, S.ROTORS_START * L, L):
-            value = xs[row + lane] + sixth_dt * (acc[row + lane] + ks[row + lane])
-            xs[row + lane] = value
-            broken |= (value - value) != 0.0
-        qw, qx, qy, qz = xs[_Q_W + lane], xs[_Q_X + lane], xs[_Q_Y + lane], xs[_Q_Z + lane]
-        norm = np.sqrt(qw**2 + qx**2 + qy**2 + qz**2)
-        for row in range(_Q_W, _Q_Z + 1, L):
-            xs[row + lane] /= norm
-        # Ground contact: no sinking; while resting, the ground holds the vehicle still.
-        below = use_ground & (xs[_P_Z + lane] < ground_height)
-        xs[_P_Z + lane] = ground_height if below else xs[_P_Z + lane]
+        p_x, p_y = xs[_P_X + lane], xs[_P_Y + lane]
+        q_w, q_x, q_y, q_z = xs[_Q_W + lane], xs[_Q_X + lane], xs[_Q_Y + lane], xs[_Q_Z + lane]
+        broken |= _rk4_lane_end(sixth_dt, lane, xs, ks, acc)
+        touching = xs[_P_Z + lane] < ground_height
+        falling = -xs[_V_Z + lane]
+        was_crashed = contact[_CRASHED + lane] != 0.0
+        cos_tilt = 1.0 - 2.0 * (q_x * q_x + q_y * q_y)
+        crash = touching & (not was_crashed) & ((falling > crash_speed) | (cos_tilt < cos_crash_tilt))
+        contact[_CRASHED + lane] = 1.0 if crash else contact[_CRASHED + lane]
+        contact[_TOUCHDOWN + lane] = falling if crash else contact[_TOUCHDOWN + lane]
+        contact[_CRASH_STEP + lane] = step if crash else contact[_CRASH_STEP + lane]
+        held = touching | was_crashed
+        xs[_P_X + lane] = p_x if held else xs[_P_X + lane]
+        xs[_P_Y + lane] = p_y if held else xs[_P_Y + lane]
+        xs[_P_Z + lane] = ground_height if held else xs[_P_Z + lane]
+        xs[_Q_W + lane] = q_w if held else xs[_Q_W + lane]
+        xs[_Q_X + lane] = q_x if held else xs[_Q_X + lane]
+        xs[_Q_Y + lane] = q_y if held else xs[_Q_Y + lane]
+        xs[_Q_Z + lane] = q_z if held else xs[_Q_Z + lane]
         for row in (_V_X, _V_Y, _V_Z, _W_X, _W_Y, _W_Z):
-            xs[row + lane] = 0.0 if below else xs[row + lane]
+            xs[row + lane] = 0.0 if held else xs[row + lane]
+    return broken
+
+
+@_lane
+def _rk4_step_end(dt, lanes, rows, step, ground, xs, ks, acc, contact):
+    """After RK4 stage 4: the new state in ``xs``, unit quaternions, ground contact.
+
+    ``ground``: (use_ground, height, crash speed, cos of the crash tilt). The ground contact of
+    multirotor_ros.model.integrator (hold_on_ground and CrashLatch): a lane that ends the step below the
+    ground, or has crashed, keeps its pose before the step, on the ground, at rest; a touchdown faster or
+    more tilted than the crash limits latches the lane in ``contact``.
+    Returns whether some lane became non-finite: one flag for the chunk, its lanes looked at only when it
+    is raised.
+    """
+    use_ground, ground_height = ground[0], ground[1]
+    sixth_dt = dt / 6
+    # Holding a lane needs its pose before the step: a chunk where no lane can touch the ground (the usual
+    # case, one height row looked at) takes the update alone.
+    grounded = False
+    if use_ground:
+        for lane in range(lanes):
+            height = xs[_P_Z + lane] + sixth_dt * (acc[_P_Z + lane] + ks[_P_Z + lane])
+            grounded |= (height < ground_height) | (contact[_CRASHED + lane] != 0.0)
+    broken = False
+    if grounded:
+        broken = _rk4_end_on_ground(sixth_dt, lanes, step, ground, xs, ks, acc, contact)
+    else:
+        for lane in range(lanes):
+            broken |= _rk4_lane_end(sixth_dt, lane, xs, ks, acc)
     for row in range(S.ROTORS_START * L, rows * L, L):
         for lane in range(lanes):
             value = xs[row + lane] + sixth_dt * (acc[row + lane] + ks[row + lane])
@@ -427,8 +493,9 @@ class _KernelWriter:
             "import numpy as np\n"
             "from numba import njit, prange\n\n"
             "from multirotor_ros.model.compiled import (\n"
-            "    L, S, _OMEGA, _P_Z, _Q_W, _Q_X, _Q_Y, _Q_Z, _V_X, _V_Y, _V_Z, _W_X, _W_Y, _W_Z,\n"
-            "    _jit, _lane, _lane_is_finite, _load_chunk, _rigid_body_rows,\n"
+            "    CONTACT_ROWS, L, S, _CRASH_STEP, _CRASHED, _OMEGA, _P_Z, _Q_W, _Q_X, _Q_Y, _Q_Z,\n"
+            "    _TOUCHDOWN, _V_X, _V_Y, _V_Z, _W_X, _W_Y, _W_Z, _jit, _lane, _lane_is_finite, _load_chunk,\n"
+            "    _rigid_body_rows,\n"
             "    _rk4_stage_update, _rk4_step_end,\n"
             ")\n"
             "from multirotor_ros.model.effects import EFFECTS\n"
@@ -499,8 +566,8 @@ def _derivative(t, y, u, prm, inertia, inertia_inv, positions, spin, lower, sums
 
 @_jit
 def _rk4_chunk(
-    t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height,
-    lanes, valid, failed,
+    t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, ground, contact, lanes, valid,
+    failed,
 ):
     """RK4 ``steps`` times for the lanes of one chunk; ``failed[lane]`` = first step that went non-finite."""
     size = S.ROTORS_START + positions.shape[0]
@@ -522,7 +589,7 @@ def _rk4_chunk(
             )
             if stage < 3:
                 _rk4_stage_update(stage == 0, half_dt if stage < 2 else dt, lanes, rows, xs, ks, acc, ys)
-        if _rk4_step_end(dt, lanes, rows, use_ground, ground_height, xs, ks, acc):
+        if _rk4_step_end(dt, lanes, rows, step, ground, xs, ks, acc, contact):
             for lane in range(valid):
                 if failed[lane] < 0 and not _lane_is_finite(xs, size, lane):
                     failed[lane] = step
@@ -532,9 +599,14 @@ def _rk4_chunk(
 
 
 def _advance(
-    t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground, ground_height
+    t0, x, u, prm, inertia, inertia_inv, positions, spin, lower, dt, steps, ground, crashed, touchdown,
+    crash_step,
 ):
-    """RK4 ``steps`` times for every vehicle, in place; per vehicle the first step that went non-finite."""
+    """RK4 ``steps`` times for every vehicle, in place; per vehicle the first step that went non-finite.
+
+    ``crashed``, ``touchdown``, ``crash_step``: the crash latch (integrator.CrashLatch), updated in place;
+    ``crash_step`` tells the crashes of this call.
+    """
     batch, size = x.shape
     lanes = min(L, batch)
     chunks = (batch + lanes - 1) // lanes
@@ -546,13 +618,21 @@ def _advance(
         us = np.empty(u.shape[1] * L)
         ps = np.empty(prm.shape[1] * L)
         _load_chunk(x, u, prm, first, lanes, not LAG, xs, us, ps)
+        contact = np.zeros(CONTACT_ROWS * L)
+        for lane in range(valid):
+            contact[_CRASHED + lane] = 1.0 if crashed[first + lane] else 0.0
+            contact[_TOUCHDOWN + lane] = touchdown[first + lane]
+            contact[_CRASH_STEP + lane] = -1.0
         _rk4_chunk(
-            t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, use_ground,
-            ground_height, lanes, valid, failed[first : first + valid],
+            t0, xs, us, ps, inertia, inertia_inv, positions, spin, lower, dt, steps, ground, contact, lanes,
+            valid, failed[first : first + valid],
         )
         for lane in range(valid):
             for j in range(size):
                 x[first + lane, j] = xs[j * L + lane]
+            crashed[first + lane] = contact[_CRASHED + lane] != 0.0
+            touchdown[first + lane] = contact[_TOUCHDOWN + lane]
+            crash_step[first + lane] = int(contact[_CRASH_STEP + lane])
     return failed
 
 
@@ -644,6 +724,12 @@ class CompiledStepper:
             np.ascontiguousarray(airframe.spin_signs, dtype=float),
             np.ascontiguousarray(airframe.lower_rotor_mask),
         )
+        # Without a crash latch the kernel still takes one; this one never latches (no crash limits).
+        self._no_crashes = (
+            np.zeros(batch, dtype=bool),
+            np.full(batch, np.nan),
+            np.full(batch, -1, dtype=np.int64),
+        )
 
     def derivative(self, t: float, x: FloatArray, u: FloatArray) -> FloatArray:
         """dx/dt for each vehicle, from the compiled formulas (used to test them against the numpy model)."""
@@ -659,9 +745,21 @@ class CompiledStepper:
         return out
 
     def advance(
-        self, t: float, x: FloatArray, u: FloatArray, dt: float, steps: int, ground_height_m: float | None
+        self,
+        t: float,
+        x: FloatArray,
+        u: FloatArray,
+        dt: float,
+        steps: int,
+        ground_height_m: float | None,
+        crashes: CrashLatch | None = None,
     ) -> FloatArray:
-        """State after ``steps`` RK4 steps of ``dt`` with u held; FloatingPointError if one blows up."""
+        """State after ``steps`` RK4 steps of ``dt`` with u held; FloatingPointError if one blows up.
+
+        ``crashes``: latched and held as ``Integrator.advance`` does.
+        """
+        if crashes is not None and ground_height_m is None:
+            raise ValueError("crashes need a ground: ground_height_m is None")
         x_next = np.array(x, dtype=float, order="C")
         kernel = (
             self._kernel.advance_parallel if self.batch >= PARALLEL_MIN_BATCH else self._kernel.advance_serial
@@ -674,8 +772,17 @@ class CompiledStepper:
             *self._geometry,
             float(dt),
             int(steps),
-            ground_height_m is not None,
-            float(ground_height_m or 0.0),
+            (
+                ground_height_m is not None,
+                float(ground_height_m or 0.0),
+                math.inf if crashes is None else crashes.crash_speed_m_s,
+                -math.inf if crashes is None else crashes.cos_crash_tilt,
+            ),
+            *(
+                self._no_crashes
+                if crashes is None
+                else (crashes.crashed, crashes.touchdown_speed_m_s, crashes.crash_step)
+            ),
         )
         if np.any(failed >= 0):
             vehicle = int(np.argmax(failed >= 0))

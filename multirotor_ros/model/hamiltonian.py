@@ -18,6 +18,8 @@ rotor speeds (12:12+N) [rad/s].
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -25,6 +27,9 @@ from multirotor_ros.model import state as S
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray, euler_rates_matrix, euler_to_matrix, quat_to_euler
 from multirotor_ros.model.state import StateBatch
+
+if TYPE_CHECKING:
+    from multirotor_ros.model.integrator import CrashLatch
 
 ROTORS_START = 12
 
@@ -123,8 +128,20 @@ class HamiltonianModel:
         if self.model.rotor_time_constant_s is None:
             X[:, ROTORS_START:] = command
 
-    def rest_on_ground(self, X: FloatArray, height_m: float) -> None:
-        """Ground contact: no sinking below ``height_m``; resting means no momentum."""
-        below = X[:, 2] < height_m
-        X[below, 2] = height_m
-        X[below, 6:12] = 0.0
+    def rest_on_ground(
+        self, X_before: FloatArray, X: FloatArray, height_m: float, latch: CrashLatch | None, step: int
+    ) -> None:
+        """Ground contact of :func:`~multirotor_ros.model.integrator.hold_on_ground` in canonical coordinates.
+
+        Resting means the pose before the step, on the ground, and no momentum.
+        """
+        touching = X[:, 2] < height_m
+        held = touching
+        if latch is not None:
+            roll, pitch = X_before[:, 3], X_before[:, 4]
+            falling_m_s = -X[:, 8] / self.model.mass_kg
+            held = latch.held(touching, falling_m_s, np.cos(roll) * np.cos(pitch), step)
+        X[held, 0:2] = X_before[held, 0:2]
+        X[held, 2] = height_m
+        X[held, 3:6] = X_before[held, 3:6]
+        X[held, 6:12] = 0.0

@@ -217,13 +217,6 @@ class Model:
         if self.rotor_time_constant_s is None:
             x[:, S.ROTORS_START :] = command
 
-    def rest_on_ground(self, x: FloatArray, height_m: float) -> None:
-        """Ground contact: no sinking below ``height_m``; while resting the ground holds the vehicle still."""
-        below = x[:, 2] < height_m
-        x[below, 2] = height_m
-        x[below, 3:6] = 0.0
-        x[below, S.BODY_RATE] = 0.0
-
     def mechanical_energy(self, x: FloatArray) -> FloatArray:
         """Kinetic + potential energy [J] of each vehicle: the Hamiltonian of seed 2 (eq. 5)."""
         v = x[:, S.VELOCITY]

@@ -29,6 +29,16 @@ would wait for ever.
 Until the first setpoint the vehicle holds the pose of the first odometry it received. With no
 odometry for ``odom_timeout_s`` the node stops sending commands (warning logged once) and the
 simulator's watchdog stops the rotors.
+
+Starting over (nodes/reset.py): the ``~/reset`` service (std_srvs/Trigger) and a ``simulation_reset``
+message (the simulator put the vehicle back in its initial state) clear the law's integrals, the
+setpoints waiting for their time, the setpoint in force and what the odometry check remembers (last
+position, frames, stamps); until a new setpoint the vehicle holds the pose of the next odometry, as at
+start, and a tick waits for that odometry (in lockstep the simulator resends its state: the loop goes
+on). After a ``simulation_reset`` odometry stamped before the reset is dropped: it is the old vehicle's.
+The rotor effectiveness in use is kept: it is the identifier's diagnosis, which the controller does not
+own; a reset identifier says "nothing known", which the filter holds, so a rotor found stopped is not
+put back into the allocation by a reset.
 Gains: parameters under the paper's names, defaults from the airframe YAML's ``controller`` section,
 settable at run time (validated; the integrals are rescaled so the output does not jump).
 
@@ -44,10 +54,11 @@ away. The latest accepted message holds until the next, as the filter holds an u
 no stamp, the identifier republishes it several times a second, and a rotor found stopped does not
 start again because the identifier fell silent. Parameter ``fault_tolerant_allocation`` (default true,
 settable at run time): false feeds the filter a confident "all healthy" instead, i.e. the nominal
-allocation, reached without a jump; the gains are the same either way. One INFO line when reallocation
-starts (a rotor's effectiveness in use drops below ``1 - REALLOCATION_NOTICE``) and when it ends,
-naming the rotors and the effectiveness in use; one WARN per reallocation when the allocator gives up
-yaw authority (keeps less than ``YAW_GIVEN_UP_FRACTION`` of the wanted yaw torque).
+allocation, reached without a jump; the gains are the same either way. One short INFO line when
+reallocation starts (a rotor's effectiveness in use drops below ``1 - REALLOCATION_NOTICE``) and when it
+ends, naming the rotors and the effectiveness in use (the diagnosis behind it at DEBUG); one WARN per
+reallocation when the allocator gives up yaw authority (keeps less than ``YAW_GIVEN_UP_FRACTION`` of the
+wanted yaw torque).
 
 Hostile input (issue 11): nothing refused reaches the law, so its integrals never see it. Every refusal
 is counted per reason, logged once per reason, then summarised (refusals.py).
@@ -107,6 +118,7 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.reset import ResetFence, frame_refusal, offer_reset
 from multirotor_ros.plausibility import NS_PER_S, StampGate, StateLimits, format_vector, jump_refusal
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import ClockTicks, StateForTick
@@ -246,6 +258,7 @@ class ControllerNode(Node):
         self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
         self._yaw_warned = False
         self._last_command: JointState | None = None
+        self._reset_fence = ResetFence(self._odometry_check.gate.future_tolerance_s)
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
@@ -257,6 +270,13 @@ class ControllerNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._wall_timer = self.create_timer(
             1.0 / self.law.gains.rate_hz, self._on_timer, clock=steady_clock()
+        )
+        offer_reset(
+            self,
+            self._reset,
+            lambda message: frame_refusal(message, self._odom_frame),
+            self._odometry_check.gate.future_tolerance_s,
+            lambda: self._time.now_ns() if self._time.running else None,
         )
         self._time = NodeTime(self, self._on_simulated_clock)
         if self._time.simulated:
@@ -270,6 +290,8 @@ class ControllerNode(Node):
             # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
             return
         now_ns = self._time.now_ns()
+        if self._reset_fence.stale(stamp_to_ns(message.header.stamp), now_ns):
+            return
         state = self._odometry_check.accept(message, now_ns)
         if isinstance(state, Refusal):
             self._odom_refusals.refuse(state.reason, state.detail)
@@ -338,25 +360,24 @@ class ControllerNode(Node):
         if reallocated != self._reallocated:
             self._reallocated = reallocated
             self._yaw_warned = False
-            self.get_logger().info(self._reallocation_line(effectiveness))
+            self._log_reallocation(effectiveness)
         return effectiveness
 
-    def _reallocation_line(self, effectiveness: FloatArray) -> str:
+    def _log_reallocation(self, effectiveness: FloatArray) -> None:
         if not self._reallocated:
-            return "fault-tolerant allocation ends: every rotor back in the allocation, nominal allocation"
-        diagnosed = ""
+            self.get_logger().info("fault-tolerant allocation ends: every rotor back, nominal allocation")
+            return
+        self.get_logger().info(
+            "fault-tolerant allocation: reallocating around "
+            + ", ".join(f"rotor {k + 1} (effectiveness {effectiveness[k]:.2f})" for k in self._reallocated)
+        )
         if self._diagnosis is not None:
             estimate, std = self._diagnosis
-            diagnosed = ", diagnosed " + ", ".join(
-                f"{estimate[k]:.2f} ± {std[k]:.2f}" for k in self._reallocated
+            self.get_logger().debug(
+                "diagnosed "
+                + ", ".join(f"rotor {k + 1} {estimate[k]:.2f} ± {std[k]:.2f}" for k in self._reallocated)
+                + f"; the effectiveness in use follows with {self._effectiveness_filter.time_constant_s:g} s"
             )
-        return (
-            "fault-tolerant allocation: reallocating around "
-            + ", ".join(f"rotor {k + 1}" for k in self._reallocated)
-            + " (effectiveness in use "
-            + ", ".join(f"{effectiveness[k]:.2f}" for k in self._reallocated)
-            + f"{diagnosed}; moving with a time constant of {self._effectiveness_filter.time_constant_s:g} s)"
-        )
 
     def _on_simulated_clock(self, now_ns: int) -> None:
         if self._clock_ticks.clock(now_ns):
@@ -368,6 +389,11 @@ class ControllerNode(Node):
     def _tick(self, now_ns: int) -> None:
         if self._time.simulated and not self._state_for_tick.tick(now_ns):
             return  # the odometry of this tick is on its way: computed when it arrives
+        if self._time.simulated and self._state is None:
+            # After a reset: no command until odometry comes, and in lockstep none comes (only resends)
+            # until this tick has its command; so it waits for that odometry as for one on its way.
+            self._state_for_tick.waiting_tick_ns = now_ns
+            return
         self._control(now_ns)
 
     def _control(self, now_ns: int) -> None:
@@ -388,9 +414,8 @@ class ControllerNode(Node):
         if self._reallocated and yaw_given_up and not self._yaw_warned:
             self._yaw_warned = True
             self.get_logger().warning(
-                f"yaw authority given up: without {', '.join(f'rotor {k + 1}' for k in self._reallocated)} "
-                f"the allocation keeps {100 * output.allocation.yaw_fraction:.0f} % of the wanted yaw torque "
-                "(thrust, roll and pitch first); the heading may drift"
+                f"yaw authority given up: {100 * output.allocation.yaw_fraction:.0f} % of the wanted yaw "
+                "torque kept; the heading may drift"
             )
         speeds = output.omega_cmd_rad_s
         if not (np.all(np.isfinite(speeds)) and np.all(speeds >= 0.0)):
@@ -403,6 +428,26 @@ class ControllerNode(Node):
             return
         self._last_command = joint_state_from_rotor_speeds(speeds, stamp_from_ns(now_ns))
         self._command_pub.publish(self._last_command)
+
+    def _reset(self, cause: str, reset_stamp_ns: int | None) -> str:
+        """Start over (module docstring); one line saying what was dropped."""
+        waiting = len(self._scheduled)
+        self.law.reset()
+        self._scheduled.clear()
+        self._target = None
+        self._state = None
+        self._stale = False
+        self._odometry_check = OdometryCheck(forget_after_ns=self._odom_timeout_ns)
+        if reset_stamp_ns is None:
+            self._reset_fence.open()
+        else:
+            self._reset_fence.close(reset_stamp_ns, self._time.now_ns())
+        line = (
+            f"reset by {cause}: integrals and {waiting} waiting setpoints cleared; "
+            "holding the next odometry's pose"
+        )
+        self.get_logger().info(line)
+        return line
 
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changes = {p.name: float(p.value) for p in parameters if p.name in GAIN_UNITS}

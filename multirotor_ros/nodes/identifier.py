@@ -58,6 +58,24 @@ says which, and whether the others still come (once per episode; a line when it 
 end a silence, and a silence with resends says that its publisher is alive and waits). It is
 published as a DiagnosticArray of its own just before the rotors' one, which keeps one status per
 rotor and nothing else.
+
+``/diagnostics`` (absolute, for diagnostic_aggregator, which reads only that topic): the same statuses
+(levels, messages, values) in one DiagnosticArray per period, named ``<node>: inputs`` and
+``<node>: rotor_k`` as diagnostic_updater names them, ``<node>`` being the node's fully qualified name
+without the leading slash (``identifier`` at the root namespace, ``uav1/identifier`` under ``/uav1``: two
+vehicles do not collide), and ``hardware_id`` the vehicle: its namespace (the airframe's name at the root
+namespace). At the root namespace the relative ``diagnostics`` is ``/diagnostics`` too: both forms are
+published on it, the spec's two arrays and the aggregator's one.
+
+Starting over (nodes/reset.py): the ``~/reset`` service (std_srvs/Trigger) and a ``simulation_reset``
+message (the simulator put the vehicle back in its initial state) drop the estimates, the refit window,
+the observer, the detector's learnt noise and every fault finding, as if the node had just started with
+its parameters as they are now (``_reset``); one INFO line says so.
+
+The log: one short line per event (a fault found or cleared, an input silent or back, a gap, a reset),
+details at DEBUG (the refits among them). Times in it are seconds of the messages' clock (simulated time
+under a simulator) since the first state sample the node took, or took after its last reset
+(FlightMonitor.since_start_s), never the stamp itself, which on wall time is seconds since 1970.
 """
 
 from __future__ import annotations
@@ -77,8 +95,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, Header
 
-from multirotor_ros.diagnosis.detection import DetectionSettings
-from multirotor_ros.diagnosis.inputs import InputWatch
+from multirotor_ros.diagnosis.detection import DetectionSettings, DetectorOutput
+from multirotor_ros.diagnosis.diagnoser import RotorReport
+from multirotor_ros.diagnosis.inputs import InputsStatus, InputWatch
 from multirotor_ros.diagnosis.monitor import (
     FlightMonitor,
     MonitorSettings,
@@ -105,6 +124,7 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.reset import ResetFence, frame_refusal, offer_reset
 from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
@@ -112,6 +132,8 @@ from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 # Messages kept while a callback runs: a simulator running faster than real time publishes in bursts,
 # and a dropped state or rotor-speed message is a gap in the data.
 QUEUE_DEPTH = 100
+# Where diagnostic_aggregator reads every node's statuses (module docstring).
+AGGREGATOR_TOPIC = "/diagnostics"
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 # rotor_effectiveness is published at once when an estimate moves more than this, or its std more than
 # the second (module docstring); a healthy rotor's std wanders by about 0.01 from sample to sample.
@@ -282,18 +304,9 @@ class IdentifierNode(Node):
                 record = FlightRecord(p["record_path"], self.airframe.name, n)
             except RecordError as error:
                 raise ValueError(str(error)) from error
-        self.monitor = FlightMonitor(
-            self.airframe,
-            effect_ids,
-            OnlineSettings(
-                window_s=p["window_s"], refit_period_s=p["refit_period_s"], forgetting=p["forgetting"]
-            ),
-            ObserverSettings(p["observer_convergence_time_s"], p["observer_filter_time_constant_s"]),
-            self._detection_settings(p),
-            MonitorSettings(p["sample_rate_hz"], p["max_gap_s"], p["motor_speed_max_age_s"], p["max_wait_s"]),
-            record,
-        )
         self._params = p
+        self._effect_ids = effect_ids
+        self.monitor = self._new_monitor(record, resume=True)
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         logger = self.get_logger()
         self._refused = {
@@ -304,21 +317,28 @@ class IdentifierNode(Node):
         self._internal_errors = RefusalCounter(
             logger.error, "a callback's work (internal error; the node goes on)"
         )
-        # One gate per topic: the topics' stamps need not be in order with each other.
-        self._stamps = {
-            topic: StampGate(p["future_stamp_tolerance_s"])
-            for topic in ("motor_speeds", "odom", "pose", "imu")
-        }
+        self._stamps = self._new_stamp_gates()
         self._last_stamp_ns = 0
         self._published_effectiveness: tuple[FloatArray, FloatArray] | None = None
+        self._alarmed_rotor: int | None = None  # 0-based, as last logged
+        self._reset_fence = ResetFence(p["future_stamp_tolerance_s"])
         inputs = ["motor_speeds", *(["odom"] if p["input"] == "odom" else ["pose", "imu"])]
         self._inputs = InputWatch(inputs, p["input_timeout_s"])
         self._clock_ns: int | None = None  # the node's clock at the last message, to see it go back
         self._used: dict[str, Any] = {}  # per topic, the last message used: the same again is a resend
+        self._state_frame = ""  # frame_id of the state messages used (odom or pose), for simulation_reset
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
         self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        # At the root namespace both names are /diagnostics: one publisher carries both forms.
+        self._aggregated_pub = (
+            self._diagnostics_pub
+            if self.resolve_topic_name("diagnostics") == AGGREGATOR_TOPIC
+            else self.create_publisher(DiagnosticArray, AGGREGATOR_TOPIC, 10)
+        )
+        self._aggregated_prefix = self.get_fully_qualified_name().lstrip("/") + ": "
+        self._vehicle = self.get_namespace().strip("/") or self.airframe.name
         self._effectiveness_pub = self.create_publisher(Float64MultiArray, "rotor_effectiveness", 10)
         self.create_subscription(
             JointState, "motor_speeds", self._guarded(self._on_motor_speeds), QUEUE_DEPTH
@@ -342,14 +362,41 @@ class IdentifierNode(Node):
         # Four checks per timeout: a check later than two periods means this node itself stalled.
         self.create_timer(p["input_timeout_s"] / 4, self._guarded(self._check_inputs), clock=wall)
         self.create_timer(1.0, self._guarded(self._flush_record), clock=wall)
+        offer_reset(
+            self, self._reset, self._reset_refusal, p["future_stamp_tolerance_s"], self._reset_clock_ns
+        )
         self._time = NodeTime(self)
         for note in self.monitor.notes:
             logger.info(f"record: {note}")
         logger.info(
             f"{self.airframe.name}: fitting {', '.join(effect_ids) or 'the thrust constant only'} "
-            f"(window {p['window_s']:g} s, refit every {p['refit_period_s']:g} s), input {p['input']}"
+            f"from {p['input']}" + (", recording" if p["record_path"] else "")
+        )
+        logger.debug(
+            f"window {p['window_s']:g} s, refit every {p['refit_period_s']:g} s"
             + (f", record in {p['record_path']}" if p["record_path"] else "")
         )
+
+    def _new_monitor(self, record: FlightRecord | None, resume: bool) -> FlightMonitor:
+        """A monitor as at start, with the parameters as they are now (``detection.*`` may have changed)."""
+        p = self._params
+        return FlightMonitor(
+            self.airframe,
+            self._effect_ids,
+            OnlineSettings(
+                window_s=p["window_s"], refit_period_s=p["refit_period_s"], forgetting=p["forgetting"]
+            ),
+            ObserverSettings(p["observer_convergence_time_s"], p["observer_filter_time_constant_s"]),
+            self._detection_settings(p),
+            MonitorSettings(p["sample_rate_hz"], p["max_gap_s"], p["motor_speed_max_age_s"], p["max_wait_s"]),
+            record,
+            resume,
+        )
+
+    def _new_stamp_gates(self) -> dict[str, StampGate]:
+        # One gate per topic: the topics' stamps need not be in order with each other.
+        tolerance_s = self._params["future_stamp_tolerance_s"]
+        return {topic: StampGate(tolerance_s) for topic in ("motor_speeds", "odom", "pose", "imu")}
 
     # ------------------------------------------------------------------ parameters
 
@@ -413,7 +460,8 @@ class IdentifierNode(Node):
 
         Every other message is noted, refused or not: for the input watch (a peer sending bad messages
         is not silent) and to see the node's clock go back. A resend (a lockstep simulator sends its
-        newest odometry again while it waits for a command) is no new data, no error either.
+        newest odometry again while it waits for a command) is no new data, no error either; nor is a
+        message stamped before a simulation reset (the old vehicle's, still queued: nodes/reset.py).
         """
         if not self._time.running:
             return False  # no time yet to judge a stamp by (simulated time before the first /clock)
@@ -428,7 +476,7 @@ class IdentifierNode(Node):
         back = self._inputs.heard(topic, now_ns, time.monotonic_ns())
         if back is not None:
             self.get_logger().info(back)
-        return True
+        return not self._reset_fence.stale(stamp_to_ns(message.header.stamp), now_ns)
 
     def _refusal(self, topic: str, parsed: object, stamp: Any) -> Refusal | None:
         """Why a new message of ``topic`` is refused (the parser's reason, or its stamp's), or None."""
@@ -441,9 +489,9 @@ class IdentifierNode(Node):
     def _start_new_time_line(self, back_s: float) -> None:
         """The clock went back (a restarted simulator): stamps start over, and so does the monitor."""
         self.get_logger().warning(
-            f"the clock went back by {back_s:.3f} s (a restarted simulator?): new time line, observer "
-            "restarted and residual noise learnt again before any alarm; estimates kept"
+            f"the clock went back by {back_s:.3f} s (a restarted simulator?): new time line, estimates kept"
         )
+        self.get_logger().debug("observer restarted, residual noise learnt again before any alarm")
         self.monitor.restart()
         self._used.clear()
         if self._params["input"] == "pose_imu":
@@ -477,6 +525,7 @@ class IdentifierNode(Node):
         assert not isinstance(state, Refusal)
         if self._take(StateSample(stamp_to_ns(message.header.stamp), *state)):
             self._used["odom"] = message
+            self._state_frame = message.header.frame_id
 
     def _on_pose(self, message: PoseStamped) -> None:
         if not self._arrived("pose", message):
@@ -490,6 +539,7 @@ class IdentifierNode(Node):
             self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
         self._used["pose"] = message
+        self._state_frame = message.header.frame_id
 
     def _on_imu(self, message: Imu) -> None:
         if not self._arrived("imu", message):
@@ -540,7 +590,7 @@ class IdentifierNode(Node):
             refit = result.refit
             # Routine (every refit_period_s of stamps): the estimates are on identified_parameters.
             self.get_logger().debug(
-                f"refit at t = {refit.t + self.monitor.clock_offset_s:.1f} s over {refit.n_samples} samples "
+                f"refit at t = {self.monitor.since_start_s(refit.t):.1f} s over {refit.n_samples} samples "
                 f"in {1e3 * refit.duration_s:.1f} ms: "
                 + ", ".join(
                     f"{e.name} = {e.value:.4g} ± {e.std:.2g}"
@@ -549,12 +599,26 @@ class IdentifierNode(Node):
                     for e in refit.estimates
                 )
             )
-        detection = result.detection
-        if detection is not None and detection.alarm[0] and detection.onset_t[0] == result.t:
-            report = self.monitor.reports()[int(detection.rotor[0])]
-            self.get_logger().error(f"rotor fault: {report.message}")
-        if detection is not None:
+        if result.detection is not None:
+            self._log_fault_change(result.detection, result.t)
             self._publish_effectiveness(only_if_changed=True)
+
+    def _log_fault_change(self, detection: DetectorOutput, t: float) -> None:
+        """One line when a rotor fault is found (ERROR or WARN, as its status) and one when it clears."""
+        rotor = int(detection.rotor[0]) if detection.alarm[0] else None
+        if rotor == self._alarmed_rotor:
+            return
+        t_s = self.monitor.since_start_s(t)
+        if self._alarmed_rotor is not None:
+            self.get_logger().info(
+                f"rotor fault cleared at t = {t_s:.2f} s: rotor {self._alarmed_rotor + 1} OK"
+            )
+        self._alarmed_rotor = rotor
+        if rotor is not None:
+            report = self.monitor.reports()[rotor]
+            log = self.get_logger().error if report.level == "ERROR" else self.get_logger().warning
+            log(f"rotor fault at t = {t_s:.2f} s: {report.summary}")
+            self.get_logger().debug(report.message)
 
     def _publish_effectiveness(self, only_if_changed: bool = False) -> None:
         estimate, std = self.monitor.effectiveness()
@@ -572,27 +636,37 @@ class IdentifierNode(Node):
             self.get_logger().warning(silent)
 
     def _publish_status(self) -> None:
-        stamp = stamp_from_ns(self._last_stamp_ns)
-        self._parameters_pub.publish(self._parameters_message(stamp))
+        header = Header(stamp=stamp_from_ns(self._last_stamp_ns))
+        self._parameters_pub.publish(self._parameters_message(header.stamp))
         inputs = self._inputs.status()
-        self._diagnostics_pub.publish(
-            DiagnosticArray(
-                header=Header(stamp=stamp),
-                status=[self._status(inputs.level, "inputs", inputs.message, inputs.values)],
-            )
-        )
-        rotors = [self._status(r.level, r.name, r.message, r.values) for r in self.monitor.reports()]
-        self._diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=stamp), status=rotors))
+        reports = self.monitor.reports()
+        # The spec's diagnostics: the inputs' status in an array of its own, then one status per rotor.
+        inputs_status, *rotors = self._statuses(inputs, reports, "", self.airframe.name)
+        self._diagnostics_pub.publish(DiagnosticArray(header=header, status=[inputs_status]))
+        self._diagnostics_pub.publish(DiagnosticArray(header=header, status=rotors))
+        # The aggregator's: every status in one array, named after this node, the vehicle as hardware.
+        aggregated = self._statuses(inputs, reports, self._aggregated_prefix, self._vehicle)
+        self._aggregated_pub.publish(DiagnosticArray(header=header, status=aggregated))
         self._publish_effectiveness()
 
-    def _status(self, level: str, name: str, message: str, values: dict[str, str]) -> DiagnosticStatus:
-        return DiagnosticStatus(
-            level=LEVELS[level],
-            name=name,
-            message=message,
-            hardware_id=self.airframe.name,
-            values=[KeyValue(key=k, value=v) for k, v in values.items()],
-        )
+    @staticmethod
+    def _statuses(
+        inputs: InputsStatus, reports: list[RotorReport], prefix: str, hardware_id: str
+    ) -> list[DiagnosticStatus]:
+        """The ``inputs`` status and one per rotor, their names after ``prefix``."""
+        return [
+            DiagnosticStatus(
+                level=LEVELS[level],
+                name=prefix + name,
+                message=message,
+                hardware_id=hardware_id,
+                values=[KeyValue(key=k, value=v) for k, v in values.items()],
+            )
+            for level, name, message, values in [
+                (inputs.level, "inputs", inputs.message, inputs.values),
+                *((r.level, r.name, r.message, r.values) for r in reports),
+            ]
+        ]
 
     def _parameters_message(self, stamp: Any) -> DiagnosticArray:
         message = DiagnosticArray()
@@ -630,6 +704,45 @@ class IdentifierNode(Node):
                 )
             )
         return message
+
+    # ------------------------------------------------------------------ reset
+
+    def _reset(self, cause: str, reset_stamp_ns: int | None) -> str:
+        """Forget and start over (nodes/reset.py): as if just started, with the parameters as they are.
+
+        Dropped: the estimates, the refit window, the observer, the detector's learnt noise and any fault
+        finding, the pairing of samples and the stamps seen. With a record, the samples so far are
+        written and a new segment starts, and the learnt state written next is the fresh one: a node
+        restarted after a reset does not resume what the reset forgot. Kept: the parameters, the input
+        watch (a reset does not silence a peer) and the refusal counts.
+        """
+        record = self.monitor.record
+        note = ""
+        if record is not None:
+            try:
+                record.start_new_segment()
+            except OSError as error:
+                note = f"; record: cannot write ({error})"
+        self.monitor = self._new_monitor(record, resume=False)
+        self._stamps = self._new_stamp_gates()
+        self._used.clear()
+        if self._params["input"] == "pose_imu":
+            self._fusion = self._new_fusion()
+        self._published_effectiveness = None
+        self._alarmed_rotor = None
+        if reset_stamp_ns is None:
+            self._reset_fence.open()
+        else:
+            self._reset_fence.close(reset_stamp_ns, self._time.now_ns())
+        line = f"reset by {cause}: estimates and fault findings dropped, starting over{note}"
+        self.get_logger().info(line)
+        return line
+
+    def _reset_refusal(self, message: Header) -> Refusal | None:
+        return frame_refusal(message, self._state_frame)
+
+    def _reset_clock_ns(self) -> int | None:
+        return self._time.now_ns() if self._time.running else None
 
     def _flush_record(self) -> None:
         try:

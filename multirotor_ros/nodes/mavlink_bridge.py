@@ -396,7 +396,7 @@ class MavlinkBridgeNode(Node):
         except OSError as error:
             raise ValueError(str(error)) from error
         self._loop = BridgeThread(self.bridge).start()
-        mode = "internal physics (lockstep)" if self.internal else "external physics (forwarding topics)"
+        mode = "own physics, lockstep" if self.internal else "physics from topics"
         where = (
             f"{p['flight_stack']} on port {self.bridge.flight_stack_port}"
             if self.bridge.flight_stack_port
@@ -548,15 +548,20 @@ class MavlinkBridgeNode(Node):
     def destroy_node(self) -> None:
         """Stop the MAVLink thread and close its sockets before the node goes."""
         self._loop.stop()
-        for link in (self.bridge.px4, self.bridge.ardupilot):
+        for stack, link in (("px4", self.bridge.px4), ("ardupilot", self.bridge.ardupilot)):
             if link is not None and link.times is not None:
-                summary = ", ".join(f"{key} {value:.4g}" for key, value in link.times.summary_ms().items())
+                times = link.times.summary_ms()
                 ardupilot = self.bridge.ardupilot
                 missed = ardupilot.missed_frames if ardupilot else 0
                 repeated = ardupilot.repeated_frames if ardupilot else 0
+                answer = f", answer p95 {times['answer_p95_ms']:.3g} ms" if "answer_p95_ms" in times else ""
+                simulated_s = self.bridge.simulation.latest.t_s
                 self.get_logger().info(
-                    f"frame timing: {summary}; simulated {self.bridge.simulation.latest.t_s:.3f} s, "
-                    f"{missed} frames missed, {repeated} repeated"
+                    f"{stack}: {times['frames']:.0f} frames in {simulated_s:.3f} s simulated{answer}, "
+                    f"{missed} missed, {repeated} repeated"
+                )
+                self.get_logger().debug(
+                    "frame timing: " + ", ".join(f"{key} {value:.4g}" for key, value in times.items())
                 )
         super().destroy_node()
 

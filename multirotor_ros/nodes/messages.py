@@ -17,6 +17,7 @@ IMU (sensor_msgs/Imu: orientation, body rates and specific force in body FLU)
     ``imu_message(stamp, frame_id, q_WB, specific_force_B, w_WB_B, *, accel_var, gyro_var,
     orientation_var)``; ``simulated_imu_message(stamp, frame_id, reading, sensors)`` with the
     covariances of the simulated sensor's noise; ``imu_from_message(msg) -> (w_WB_B, specific_force_B)``.
+    ``odometry_covariances(sensors) -> (pose, twist)``: the odometry's covariances from the same noise.
 
 Quaternions and stamps
     ``quaternion_to_msg(q_wxyz)``, ``quaternion_from_msg(msg) -> (w, x, y, z)`` (frames.py holds the
@@ -407,6 +408,25 @@ def simulated_imu_message(
 
 
 @cache
+def odometry_covariances(sensors: SensorConfig) -> tuple[FloatArray, FloatArray]:
+    """(pose, twist) covariances, 6x6 row-major, of the simulator's odometry (REP-105 order x y z, rx ry rz).
+
+    The odometry is the true state, but what stands for it on a real vehicle is the simulated sensors: the
+    motion-capture pose (its position and angle noise), a velocity differenced from two of its samples
+    (sqrt 2 x position noise x its rate) and the gyro's per-sample noise. Those are the covariances given,
+    so that a consumer that weighs odometry (a state estimator, RViz's covariance display) gets the
+    uncertainty it would have with the real sensors; without sensor noise they are zero.
+    """
+    position_var = sensors.pose_position_noise_m**2
+    angle_var = sensors.pose_angle_noise_rad**2
+    velocity_var = 2.0 * position_var * sensors.pose_rate_hz**2
+    rate_var = sensors.gyro_sample_std_rad_s**2
+    pose = np.diag([position_var] * 3 + [angle_var] * 3).reshape(36)
+    twist = np.diag([velocity_var] * 3 + [rate_var] * 3).reshape(36)
+    pose.flags.writeable = twist.flags.writeable = False
+    return pose, twist
+
+
 def _diagonal(variance: float) -> FloatArray:
     diagonal = np.diag([variance] * 3).reshape(9)
     diagonal.flags.writeable = False

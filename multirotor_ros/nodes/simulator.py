@@ -7,12 +7,30 @@ Wiring::
                                                                    range (Range), motor_speeds (JointState)
                                                                 -> clock (with every odom, if publish_clock)
     fault_motor, fault_effectiveness (parameters) ---------------> injected_faults (DiagnosticArray)
+                                                                -> /tf (odom -> base_link, with every odom),
+                                                                   /tf_static (base_link -> rotor_k)
+    ~/reset (std_srvs/Trigger) --> vehicles to their initial state -> simulation_reset (Header)
 
 Rates: odom and clock at ``publish_rate_hz`` (250 Hz), imu 100 Hz, pose 100 Hz, motor_speeds 100 Hz,
 range 15 Hz (the airframe YAML's ``sensors`` section, exposed as read-only ``sensors.*`` parameters).
 QoS: odom, motor_speeds, motor_speed_cmd reliable (depth 10); imu, pose, range best effort (sensor data);
 clock best effort depth 1 (as rclpy's time source subscribes); injected_faults reliable + transient local,
 so a late subscriber gets the current truth.
+
+Frames and tf (REP-105): ``frame_prefix`` + ``odom`` / ``base_link`` (+ the vehicle's name in a fleet);
+the launch files set the prefix from the namespace (``uav1/``) so that vehicles' frames do not collide.
+``/tf`` and ``/tf_static`` are absolute, as tf2 listeners and RViz expect, with tf2's QoS; ``publish_tf``
+false leaves them out. The odometry is the true state; its covariances are those of the simulated sensors
+that would stand for it (messages.odometry_covariances), zero with ``noise`` false.
+
+Ground and crashes (simulation/vehicle.py): the ground holds a vehicle resting on it; a touchdown too fast
+or too tilted is a crash: the vehicle lies where it fell, rotors stopped, commands ignored, until
+``~/reset``. Each vehicle's ``crashed`` (std_msgs/Bool, transient local: a late subscriber gets it) is
+false from the start, true at a crash, and the node logs one error line saying how it hit the ground.
+
+Reset: ``~/reset`` puts every vehicle back in its initial state (pose, at rest, rotors stopped, crash
+cleared; faults stay as their parameters say). Simulated time runs on, since clocks and tf never go back;
+each vehicle's ``simulation_reset`` (nodes/reset.py) tells its controller and identifier to start over.
 
 Pacing (simulation/pacing.py), the clock and stamps (issue 10):
 
@@ -70,12 +88,16 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Range
+from std_msgs.msg import Bool, Header
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
+    odometry_covariances,
     odometry_message,
     pose_message,
     rotor_names,
@@ -84,12 +106,16 @@ from multirotor_ros.nodes.messages import (
     stamp_from_ns,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.reset import RESET_SERVICE, SIMULATION_RESET_QOS, SIMULATION_RESET_TOPIC
 from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
+from multirotor_ros.nodes.visual_messages import rotor_transforms, transform_from_odometry
 from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import NS_PER_S, AchievedRate, ControlTiming, Lockstep, RealTimePacer
 from multirotor_ros.simulation.sensors import SensorConfig, airframe_sensor_config
 from multirotor_ros.simulation.vehicle import (
+    CRASH_SPEED_M_S,
+    CRASH_TILT_RAD,
     OVERSIZED_SPEED_FACTOR,
     Reading,
     VehicleSimulator,
@@ -126,6 +152,9 @@ SLOW_WARNING_REPEAT_S = 10.0
 # Queue depth of the state topics (odom, motor_speeds): about 0.2 s at 250 Hz.
 STATE_QUEUE_DEPTH = 50
 LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# tf2's own QoS (tf2_ros DynamicBroadcasterQoS and StaticBroadcasterQoS): what its listeners and RViz match.
+TF_QOS = QoSProfile(depth=100)
+TF_STATIC_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def simulator_parameters(
@@ -196,6 +225,30 @@ def simulator_parameters(
         NodeParameter("initial_yaw", 0.0, "initial yaw", "rad", -math.pi, math.pi, read_only=True),
         NodeParameter(
             "frame_prefix", "", "prefix of the frame ids odom and base_link (e.g. uav1/)", read_only=True
+        ),
+        NodeParameter(
+            "crash_speed_m_s",
+            CRASH_SPEED_M_S,
+            "a touchdown sinking faster than this is a crash (simulation/vehicle.py gives the reason)",
+            "m/s",
+            0.1,
+            1000.0,
+            read_only=True,
+        ),
+        NodeParameter(
+            "crash_tilt_rad",
+            CRASH_TILT_RAD,
+            "a touchdown tilted more than this is a crash; pi = never by tilt",
+            "rad",
+            0.05,
+            math.pi,
+            read_only=True,
+        ),
+        NodeParameter(
+            "publish_tf",
+            True,
+            "broadcast odom -> base_link on /tf with every odometry, base_link -> rotor_k on /tf_static",
+            read_only=True,
         ),
         *(fault for vehicle in vehicles for fault in fault_parameters(vehicle, n_rotors)),
     ]
@@ -274,6 +327,8 @@ class _VehicleTopics:
             "motor_speeds": node.create_publisher(JointState, prefix + "motor_speeds", STATE_QUEUE_DEPTH),
         }
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
+        self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
+        self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
         self.commands = node.create_subscription(
             JointState, prefix + "motor_speed_cmd", lambda message: node.on_command(self, message), 10
         )
@@ -330,6 +385,8 @@ class SimulatorNode(Node):
             noise=p["noise"],
             initial_position_m=[v.position_m for v in vehicles],
             initial_yaw_rad=[v.yaw_rad for v in vehicles],
+            crash_speed_m_s=p["crash_speed_m_s"],
+            crash_tilt_rad=p["crash_tilt_rad"],
         )
         self._params = p
         self._names = rotor_names(n)
@@ -361,6 +418,14 @@ class SimulatorNode(Node):
         self._last_slow_warning_s = -math.inf
 
         self._clock_pub = self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if clock_on else None
+        # The odometry's covariances: fixed by the sensor model (messages.odometry_covariances).
+        self._odometry_covariances = odometry_covariances(self.sim.sensor_config)
+        # tf is absolute, as tf2 listeners expect; frame_prefix and the vehicle names keep vehicles apart.
+        self._tf_pub = self.create_publisher(TFMessage, "/tf", TF_QOS) if p["publish_tf"] else None
+        self._tf_static_pub = (
+            self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS) if p["publish_tf"] else None
+        )
+        self.create_service(Trigger, RESET_SERVICE, self._on_reset)
         self._pacing_pub = self.create_publisher(DiagnosticArray, "pacing", 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -405,6 +470,21 @@ class SimulatorNode(Node):
         self._achieved = AchievedRate(time.monotonic(), self.sim.t_ns)
         self._publish(self.sim.run_until(0))
         self._publish_faults()
+        for vehicle in self.vehicles:
+            vehicle.crashed.publish(Bool(data=False))
+        if self._tf_static_pub is not None:
+            stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
+            self._tf_static_pub.publish(
+                TFMessage(
+                    transforms=[
+                        transform
+                        for vehicle in self.vehicles
+                        for transform in rotor_transforms(
+                            self.airframe.rotor_positions_m, vehicle.frames[1], stamp
+                        )
+                    ]
+                )
+            )
         if self._lockstep is not None:
             self._run_to(self._lockstep.limit_ns())
 
@@ -497,6 +577,24 @@ class SimulatorNode(Node):
         if "command_timeout_s" in changed:
             self.sim.command_timeout_ns = round(float(changed["command_timeout_s"]) * NS_PER_S)
 
+    def _on_reset(self, _: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """``~/reset``: every vehicle back to its initial state; simulated time runs on (it never goes back).
+
+        Each vehicle's ``simulation_reset`` tells its controller and identifier to start over too.
+        """
+        self.sim.reset()
+        stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
+        for vehicle in self.vehicles:
+            vehicle.crashed.publish(Bool(data=False))
+            vehicle.resets.publish(Header(stamp=stamp, frame_id=vehicle.frames[0]))
+            # The state it starts over from, at once: a lockstep controller computes its next command on it
+            # (and the simulator resends it while it waits, whichever of the two topics arrives first).
+            self._publish_odometry(vehicle, self.sim.x[vehicle.index], stamp)
+        response.success = True
+        response.message = f"reset at t = {self.sim.t_s:.3f} s: vehicles at their initial state"
+        self.get_logger().info(response.message)
+        return response
+
     # ------------------------------------------------------------------ time
 
     def _now_ns(self) -> int:
@@ -581,8 +679,7 @@ class SimulatorNode(Node):
             stamp = stamp_from_ns(reading.t_ns + self._stamp_offset_ns)
             kind, data = reading.kind, reading.data
             if kind == "odom":
-                vehicle.last_odometry = odometry_message(data, stamp, *vehicle.frames)
-                vehicle.publishers["odom"].publish(vehicle.last_odometry)
+                self._publish_odometry(vehicle, data, stamp)
                 # One clock for all vehicles: after the last one's state of this time.
                 if self._clock_pub is not None and reading.vehicle == len(self.vehicles) - 1:
                     self._clock_pub.publish(Clock(clock=stamp))
@@ -596,11 +693,28 @@ class SimulatorNode(Node):
                 vehicle.publishers["range"].publish(self._range_message(stamp, vehicle.frames[1], data))
             elif kind == "motor_speeds":
                 vehicle.publishers["motor_speeds"].publish(joint_state_from_rotor_speeds(data, stamp))
+            elif kind == "crash":
+                vehicle.crashed.publish(Bool(data=True))
+                which = f"{vehicle.spec.name}: " if vehicle.spec.name else ""
+                self.get_logger().error(
+                    f"{which}crashed at t = {reading.t_ns / NS_PER_S:.2f} s: hit the ground at "
+                    f"{data.touchdown_speed_m_s:.1f} m/s, lies tilted {math.degrees(data.tilt_rad):.0f} deg; "
+                    "it stays down until ~/reset"
+                )
             elif kind == "watchdog":
                 which = f" ({vehicle.spec.name})" if vehicle.spec.name else ""
                 self.get_logger().warning(
                     f"no motor command for {data:.2f} s of simulated time{which}: rotors stopped"
                 )
+
+    def _publish_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> None:
+        """A vehicle's odom, with its covariances, and its transform on /tf."""
+        odometry = odometry_message(state, stamp, *vehicle.frames)
+        odometry.pose.covariance, odometry.twist.covariance = self._odometry_covariances
+        vehicle.last_odometry = odometry
+        vehicle.publishers["odom"].publish(odometry)
+        if self._tf_pub is not None:
+            self._tf_pub.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
 
     def _resend_state(self) -> None:
         """The newest odometry and clock again (same stamps), for a controller that is starting."""

@@ -6,7 +6,9 @@ a :class:`VehicleSimulator` the same way:
     sim = VehicleSimulator(airframe, rng=np.random.default_rng(1))
     sim.set_command(speeds_rad_s)            # clamped to the airframe's speed range
     for reading in sim.run_until(t_ns):      # physics at physics_rate_hz, readings when they fall due
-        ...                                  # reading.kind: odom, imu, pose, range, motor_speeds, watchdog
+        ...                                  # reading.kind: odom, imu, pose, range, motor_speeds,
+                                             # watchdog, crash
+    sim.reset()                              # back to the initial state; time goes on
 
 A fleet is V vehicles of one airframe in one simulator, stepped together: each integrator call advances
 all of them (one lane of the compiled kernel per vehicle); one vehicle is the case V = 1 of the same
@@ -22,19 +24,26 @@ one seed):
         ...
 
 Per vehicle: its state ``x[k]`` (``x`` is (V, 13 + N)), its applied command ``commands_rad_s[k]``, its
-watchdog (``last_command_ns[k]``, ``watchdog_tripped[k]``), its injected fault, its generator
-``rngs[k]`` and its IMU bias. Shared: the airframe, the true effect list, time (one clock), the sensor
-configuration and rates (all vehicles' readings fall due together; within one time the readings come
-kind by kind, vehicle 0 first). Methods about one vehicle take ``vehicle=k`` (default 0; an index
-outside 0..V-1 is a ValueError); ``state`` and ``command_rad_s`` name the one vehicle of a simulator of
-V = 1 and refuse a fleet (use ``x[k]``, ``commands_rad_s[k]``).
+watchdog (``last_command_ns[k]``, ``watchdog_tripped[k]``), its crash latch (``crashes.crashed[k]``),
+its injected fault, its generator ``rngs[k]`` and its IMU bias. Shared: the airframe, the true effect
+list, time (one clock), the sensor configuration and rates (all vehicles' readings fall due together;
+within one time the readings come kind by kind, vehicle 0 first). Methods about one vehicle take
+``vehicle=k`` (default 0; an index outside 0..V-1 is a ValueError); ``state`` and ``command_rad_s``
+name the one vehicle of a simulator of V = 1 and refuse a fleet (use ``x[k]``, ``commands_rad_s[k]``).
 
 A vehicle's readings are the same, bit for bit, whether it flies alone (with the same generator) or in a
 fleet: the kernel computes each lane on its own, a vehicle draws its noise from its own generator in the
 same order, and the sensor models compute each vehicle with the same arithmetic whatever V is
 (sensors.py). The tests hold a fleet to that.
 
-Time is an integer number of nanoseconds (physics steps of ``dt_ns``), so that stamps never drift.
+Ground and crashes (multirotor_ros.model.integrator): the ground holds a vehicle resting on it (no
+sliding, no turning) until its thrust lifts it. A touchdown faster than ``crash_speed_m_s`` or tilted
+more than ``crash_tilt_rad`` is a crash, reported once as a ``crash`` reading: the vehicle then lies
+where it hit, its rotors commanded to stop, and commands to it are taken but applied as zero (its
+watchdog rests), until :meth:`VehicleSimulator.reset`.
+
+Time is an integer number of nanoseconds (physics steps of ``dt_ns``), so that stamps never drift; a
+reset does not turn it back.
 """
 
 from __future__ import annotations
@@ -57,7 +66,7 @@ from multirotor_ros.model.effects import (
     formula_arguments,
     make_effect,
 )
-from multirotor_ros.model.integrator import Integrator
+from multirotor_ros.model.integrator import CrashLatch, Integrator
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import FloatArray
 from multirotor_ros.simulation import sensors as sens
@@ -70,6 +79,13 @@ NS_PER_S = 1_000_000_000
 OVERSIZED_SPEED_FACTOR = 2.0
 # last_command_ns of a vehicle that was never commanded (its watchdog is not armed).
 NEVER = -1
+# Default crash limits. Speed: a free fall from about 0.3 m (v = sqrt(2 g h)), what a multirotor's
+# landing gear and frame take without damage; a normal landing sinks at 0.5-1 m/s, and this leaves room
+# for a firm one. Tilt: a skid or leg gear is about as wide as the centre of mass is high, so touching
+# down tilted past about 45 degrees tips the vehicle over its gear onto an arm, and its propellers strike;
+# a controlled landing stays within 10-15 degrees of level.
+CRASH_SPEED_M_S = 2.5
+CRASH_TILT_RAD = math.pi / 4
 
 
 def _sets_rotor_lag(effect: Effect) -> bool:
@@ -120,7 +136,8 @@ class Reading(NamedTuple):
 
     kind and data: ``odom`` the true flat state (13 + N,); ``imu`` an :class:`sensors.ImuReading`;
     ``pose`` (p_WB_W, q_WB); ``range`` distance [m] (+inf: no echo); ``motor_speeds`` measured (N,);
-    ``watchdog`` the time [s] since the last command when the rotors were stopped for lack of commands.
+    ``watchdog`` the time [s] since the last command when the rotors were stopped for lack of commands;
+    ``crash`` a :class:`Crash`, at the step the vehicle hit the ground.
     A named tuple: immutable, and a fleet makes tens of thousands a second (a tuple is made in a third of
     the time of a frozen dataclass).
     """
@@ -129,6 +146,14 @@ class Reading(NamedTuple):
     t_ns: int
     data: Any
     vehicle: int = 0
+
+
+class Crash(NamedTuple):
+    """How a vehicle crashed: the data of a ``crash`` reading."""
+
+    touchdown_speed_m_s: float  # downward speed when it hit the ground [m/s]
+    tilt_rad: float  # angle between its body z axis and world up as it lies [rad]
+    p_WB_W: FloatArray  # (3,) where it lies, world ENU [m]
 
 
 @dataclass
@@ -153,7 +178,9 @@ class VehicleSimulator:
     report is the speed the ESC was asked for, which is what effects.md's ``motor_lag`` describes).
     ``command_timeout_s`` (0 = no watchdog): a vehicle without a command for that long has its rotors
     commanded to stop. ``odom_rate_hz``: rate of the ``odom`` (truth) readings; the sensors have the
-    rates of ``sensors``.
+    rates of ``sensors``. ``crash_speed_m_s`` [m/s] and ``crash_tilt_rad`` [rad]: the touchdown that is a
+    crash (module docstring; defaults :data:`CRASH_SPEED_M_S`, :data:`CRASH_TILT_RAD`; ``math.inf`` and
+    ``math.pi`` turn either test off).
     """
 
     def __init__(
@@ -171,6 +198,8 @@ class VehicleSimulator:
         initial_position_m: ArrayLike = (0.0, 0.0, 0.0),
         initial_yaw_rad: ArrayLike = 0.0,
         ground_height_m: float = 0.0,
+        crash_speed_m_s: float = CRASH_SPEED_M_S,
+        crash_tilt_rad: float = CRASH_TILT_RAD,
     ):
         if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0):
             raise ValueError(f"physics_rate_hz must be > 0, got {physics_rate_hz}")
@@ -219,6 +248,8 @@ class VehicleSimulator:
         self.commands_rad_s: FloatArray = np.repeat(start_speed[:, None], n, axis=1)
         self.last_command_ns: NDArray[np.int64] = np.where(airborne, 0, NEVER).astype(np.int64)
         self.watchdog_tripped = np.zeros(self.vehicles, dtype=bool)
+        self.crashes = CrashLatch(self.vehicles, crash_speed_m_s, crash_tilt_rad)
+        self._initial = (self.x.copy(), self.commands_rad_s.copy(), self.last_command_ns.copy())
         self._deadline_stale = True
         self._deadline_ns: int | None = None
         self._acceleration_W = np.zeros((self.vehicles, 3))
@@ -313,15 +344,17 @@ class VehicleSimulator:
     def set_command(self, speeds_rad_s: ArrayLike, vehicle: int = 0) -> FloatArray:
         """Take a vehicle's rotor speed commands [rad/s], clamped to the airframe's range; returns them.
 
-        Callers validate first (finite, N values): this raises ValueError on anything else.
+        Callers validate first (finite, N values): this raises ValueError on anything else. A crashed
+        vehicle's command stays zero until a reset.
         """
         k = self._vehicle(vehicle)
         speeds = np.asarray(speeds_rad_s, dtype=float)
         if speeds.shape != self._command_shape or not np.isfinite(speeds).all():
             raise ValueError(f"need {self.airframe.n_rotors} finite rotor speeds, got {speeds}")
-        # np.clip's own arithmetic, without its Python wrappers (a fleet takes V commands per period).
         applied = self.commands_rad_s[k]
-        np.minimum(np.maximum(speeds, self._speed_range[0]), self._speed_range[1], out=applied)
+        if not self.crashes.crashed[k]:
+            # np.clip's own arithmetic, without its Python wrappers (a fleet takes V commands per period).
+            np.minimum(np.maximum(speeds, self._speed_range[0]), self._speed_range[1], out=applied)
         self.last_command_ns[k] = self.t_ns
         self.watchdog_tripped[k] = False
         self._deadline_stale = True
@@ -356,6 +389,28 @@ class VehicleSimulator:
                 result = result * evaluate(fault, "rotor_thrust_factor", context)[0]
         return result
 
+    def crashed(self, vehicle: int = 0) -> bool:
+        """Whether a vehicle has crashed (since the start or its last reset)."""
+        return bool(self.crashes.crashed[self._vehicle(vehicle)])
+
+    def reset(self, vehicle: int | None = None) -> None:
+        """A vehicle (None: every vehicle) back to its initial state; simulated time goes on.
+
+        Its initial pose at rest, its rotors and command as at the start (stopped on the ground; at
+        hover speed when placed in the air, so that it does not drop), its watchdog restarted from now
+        (armed again only if it was at the start), its crash forgotten. Injected faults stay, and the
+        sensors' noise and bias continue.
+        """
+        vehicles = slice(None) if vehicle is None else self._vehicle(vehicle)
+        x, commands, last_command_ns = self._initial
+        self.x[vehicles] = x[vehicles]
+        self.commands_rad_s[vehicles] = commands[vehicles]
+        self.last_command_ns[vehicles] = np.where(last_command_ns[vehicles] == NEVER, NEVER, self.t_ns)
+        self.watchdog_tripped[vehicles] = False
+        self.crashes.clear(vehicles)
+        self._acceleration_W[vehicles] = 0.0
+        self._deadline_stale = True
+
     # ------------------------------------------------------------------ stepping
 
     def run_until(self, t_ns: int) -> list[Reading]:
@@ -368,14 +423,20 @@ class VehicleSimulator:
             if deadline is not None and self.t_ns < deadline < target:
                 target = deadline
             steps = max(1, -(-(target - self.t_ns) // self.dt_ns))
-            self._advance(steps, imu_due=self._schedules["imu"].next_ns <= self.t_ns + steps * self.dt_ns)
+            imu_due = self._schedules["imu"].next_ns <= self.t_ns + steps * self.dt_ns
+            self._advance(steps, imu_due, readings)
             self._check_watchdog(readings)
             self._sample_due(readings)
         return readings
 
     def _armed(self) -> NDArray[np.bool_]:
-        """(V,) whose watchdog runs: commanded, not tripped since, a timeout set."""
-        return (self.last_command_ns != NEVER) & ~self.watchdog_tripped & (self._command_timeout_ns > 0)
+        """(V,) whose watchdog runs: commanded, not tripped since, not crashed, a timeout set."""
+        return (
+            (self.last_command_ns != NEVER)
+            & ~self.watchdog_tripped
+            & ~self.crashes.crashed
+            & (self._command_timeout_ns > 0)
+        )
 
     def _watchdog_deadline(self) -> int | None:
         """The earliest time a watchdog trips (None: none runs); recomputed only after a change."""
@@ -417,21 +478,35 @@ class VehicleSimulator:
             schedule = self._schedules[kind]
             schedule.next_ns += ((t_ns - schedule.next_ns) // schedule.period_ns + 1) * schedule.period_ns
 
-    def _advance(self, steps: int, imu_due: bool) -> None:
-        command = self.commands_rad_s
+    def _advance(self, steps: int, imu_due: bool, readings: list[Reading]) -> None:
         if imu_due:
             # The IMU needs the acceleration: the last step is taken alone, and its velocity change over dt
             # is the mean acceleration of that step (exact for RK4's update, ground reaction included).
             if steps > 1:
-                self.x = self.integrator.advance(self.t_s, self.x, command, steps - 1)
-                self.t_ns += (steps - 1) * self.dt_ns
+                self._integrate(steps - 1, readings)
             v_before = self.x[:, S.VELOCITY].copy()
-            self.x = self.integrator.advance(self.t_s, self.x, command, 1)
-            self.t_ns += self.dt_ns
+            self._integrate(1, readings)
             self._acceleration_W = (self.x[:, S.VELOCITY] - v_before) / (self.dt_ns / NS_PER_S)
         else:
-            self.x = self.integrator.advance(self.t_s, self.x, command, steps)
-            self.t_ns += steps * self.dt_ns
+            self._integrate(steps, readings)
+
+    def _integrate(self, steps: int, readings: list[Reading]) -> None:
+        """``steps`` physics steps; a crash among them is reported and stops that vehicle's rotors."""
+        start_ns = self.t_ns
+        self.x = self.integrator.advance(self.t_s, self.x, self.commands_rad_s, steps, self.crashes)
+        self.t_ns += steps * self.dt_ns
+        for k in np.flatnonzero(self.crashes.crash_step >= 0).tolist():
+            self.commands_rad_s[k] = 0.0
+            self._deadline_stale = True
+            q = self.x[k, S.QUATERNION]
+            cos_tilt = 1.0 - 2.0 * (q[1] ** 2 + q[2] ** 2)
+            crash = Crash(
+                float(self.crashes.touchdown_speed_m_s[k]),
+                math.acos(min(1.0, max(-1.0, cos_tilt))),
+                self.x[k, S.POSITION].copy(),
+            )
+            hit_ns = start_ns + (int(self.crashes.crash_step[k]) + 1) * self.dt_ns
+            readings.append(Reading("crash", hit_ns, crash, k))
 
     def acceleration_W(self, vehicle: int = 0) -> FloatArray:
         """A vehicle's true acceleration [m/s^2], world ENU (dv/dt, no gravity), over the last IMU step."""
