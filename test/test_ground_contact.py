@@ -325,3 +325,27 @@ def test_crash_tests_can_be_turned_off() -> None:
     tilt(sim, 0, math.pi)
     assert not crashes(fly(sim, np.zeros(8), 1.0)) and not sim.crashed()
     assert sim.state[2] == 0.0  # still the ground holds it
+
+
+def test_the_mavlink_bridge_physics_latches_a_crash_and_reports_it_once() -> None:
+    """The bridge steps the simulator's state in its own frames: the same latch holds the wreck there."""
+    from multirotor_ros.mavlink.physics import SimulatorPhysics
+
+    airframe = load_airframe("x8_octorotor")
+    physics = SimulatorPhysics.for_airframe(airframe, noise=False)
+    frame_ns = 2_500_000  # a flight stack's 400 Hz frames
+    top = np.full(airframe.n_rotors, airframe.rotor_speed_max_rad_s)
+    t_ns = 0
+    for _ in range(400):  # 1 s at full thrust: several metres up
+        t_ns += frame_ns
+        physics.advance_to(top, t_ns)
+    assert physics.state.p_WB_W[2] > 2.0
+    crashes = []
+    for _ in range(2400):  # rotors off: it falls, hits the ground, and full thrust again moves it no more
+        t_ns += frame_ns
+        physics.advance_to(np.zeros(airframe.n_rotors) if not crashes else top, t_ns)
+        crashes += [r for r in physics.take_readings() if r.kind == "crash"]
+    assert len(crashes) == 1
+    assert crashes[0].data.touchdown_speed_m_s > CRASH_SPEED_M_S
+    assert physics.simulator.crashed()
+    assert physics.state.p_WB_W[2] == 0.0

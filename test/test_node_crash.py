@@ -16,8 +16,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.messages import rotor_names
-from multirotor_ros.nodes.simulator import LATCHED_QOS
+from multirotor_ros.nodes.messages import LATCHED_QOS, rotor_names
 
 STARTUP_TIMEOUT_S = 120.0
 HEIGHT_M = 5.0

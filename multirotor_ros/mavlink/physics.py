@@ -156,13 +156,17 @@ class SimulatorPhysics:
         x_before = simulator.x
         u = simulator.commands_rad_s
         ground = simulator.ground_height_m
+        # The simulator's crash latch: a crashed vehicle stays down here too, whatever the flight stack sends.
+        crashes = simulator.crashes if ground is not None else None
         if self._stepper is not None:
-            x = self._stepper.advance(simulator.t_s, x_before, u, substep_s, substeps, ground)
+            x = self._stepper.advance(simulator.t_s, x_before, u, substep_s, substeps, ground, crashes)
         else:
             x = Integrator(simulator.model, substep_s, ground, backend="numpy").advance(
-                simulator.t_s, x_before, u, substeps
+                simulator.t_s, x_before, u, substeps, crashes
             )
+        start_ns = simulator.t_ns
         simulator.x, simulator.t_ns = x, t_ns
+        self._readings += simulator.take_crashes(start_ns, dt_ns // substeps)
         frame_rate_hz = round(NS_PER_S / dt_ns)  # 1200 for frames of 833,333 and 833,334 ns alike
         if frame_rate_hz != self._imu_rate_hz:
             self._imu_rate_hz = frame_rate_hz

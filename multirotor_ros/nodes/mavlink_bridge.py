@@ -13,6 +13,8 @@ parameters. Which side owns the physics, and why, is described in :mod:`multirot
   ``sensors.imu_rate_hz``), ``motor_speeds`` (the ESC rate of the airframe's sensors) and, with
   ``publish_clock``, ``clock`` (with each odom). ``fault_motor`` and
   ``fault_effectiveness`` (settable at run time, as on the simulator node) inject a rotor fault into it.
+  The ground and the crash latch are the simulator's: ``crashed`` (std_msgs/Bool, transient local) turns
+  true at a crash, with one error line, and false again when the flight stack restarts the vehicle.
 - ``internal_physics: false``: subscribes ``odom``, ``imu`` and ``motor_speeds`` of a simulator node and
   forwards them. ``flight_stack: none`` (ground station only) requires this mode.
 
@@ -43,6 +45,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Bool
 
 from multirotor_ros.mavlink.actuators import RotorChannels
 from multirotor_ros.mavlink.ardupilot import DEFAULT_PORT as ARDUPILOT_PORT
@@ -66,6 +69,7 @@ from multirotor_ros.model.rotation import FloatArray, euler_to_quat
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
+    LATCHED_QOS,
     imu_from_message,
     joint_state_from_rotor_speeds,
     odometry_message,
@@ -352,6 +356,10 @@ class MavlinkBridgeNode(Node):
             self.clock_publisher = (
                 self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if self.publish_clock else None
             )
+            # As the simulator node's: false from the start and after the flight stack restarts the vehicle.
+            self.crashed_publisher = self.create_publisher(Bool, "crashed", LATCHED_QOS)
+            self.crashed_publisher.publish(Bool(data=False))
+            self._crashed = False
         else:
             self._odom: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
             self._speeds: FloatArray = np.zeros(self.airframe.n_rotors)
@@ -452,6 +460,9 @@ class MavlinkBridgeNode(Node):
         assert self.physics is not None
         if state.t_s < self._next_command_s - self._command_period_s:
             self._next_command_s = 0.0  # time went back: the flight stack restarted
+            if self._crashed:
+                self._crashed = False
+                self.bridge.defer(lambda: self._publish(self.crashed_publisher, Bool(data=False)))
         imu_config = self.physics.imu_config
         # One deferred item per message: the flight stack's next frame may come between any two.
         for reading in self.physics.take_readings():
@@ -468,6 +479,13 @@ class MavlinkBridgeNode(Node):
             self._publish(self.imu_publisher, message)
         elif reading.kind == "motor_speeds":
             self._publish(self.speeds_publisher, joint_state_from_rotor_speeds(reading.data, stamp))
+        elif reading.kind == "crash":
+            self._crashed = True
+            self._publish(self.crashed_publisher, Bool(data=True))
+            self.get_logger().error(
+                f"crashed at t = {reading.t_ns / 1e9:.2f} s: {reading.data.describe()}; "
+                "it stays down until the flight stack restarts"
+            )
 
     def _publish_clock(self, t_ns: int) -> None:
         self._publish(self.clock_publisher, Clock(clock=stamp_from_ns(t_ns)))

@@ -48,6 +48,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, Quaternion
 from nav_msgs.msg import Odometry
 from numpy.typing import ArrayLike
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import Imu, JointState
 
 from multirotor_ros.frames import ros_quat_to_wxyz, wxyz_to_ros_quat
@@ -56,6 +57,9 @@ from multirotor_ros.model.rotation import FloatArray, quat_to_euler, quat_to_mat
 from multirotor_ros.plausibility import StateLimits, format_vector
 from multirotor_ros.refusals import Refusal
 from multirotor_ros.simulation.sensors import ImuReading, SensorConfig
+
+# Topics whose newest message a late subscriber needs (the simulator's injected_faults, crashed): kept.
+LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 # ------------------------------------------------------------------------------------------------
 # Rotor speeds as JointState

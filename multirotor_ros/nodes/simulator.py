@@ -96,6 +96,7 @@ from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
+    LATCHED_QOS,
     joint_state_from_rotor_speeds,
     odometry_covariances,
     odometry_message,
@@ -151,7 +152,6 @@ LATE_PERIOD_SHARE = 0.01
 SLOW_WARNING_REPEAT_S = 10.0
 # Queue depth of the state topics (odom, motor_speeds): about 0.2 s at 250 Hz.
 STATE_QUEUE_DEPTH = 50
-LATCHED_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # tf2's own QoS (tf2_ros DynamicBroadcasterQoS and StaticBroadcasterQoS): what its listeners and RViz match.
 TF_QOS = QoSProfile(depth=100)
 TF_STATIC_QOS = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -697,8 +697,7 @@ class SimulatorNode(Node):
                 vehicle.crashed.publish(Bool(data=True))
                 which = f"{vehicle.spec.name}: " if vehicle.spec.name else ""
                 self.get_logger().error(
-                    f"{which}crashed at t = {reading.t_ns / NS_PER_S:.2f} s: hit the ground at "
-                    f"{data.touchdown_speed_m_s:.1f} m/s, lies tilted {math.degrees(data.tilt_rad):.0f} deg; "
+                    f"{which}crashed at t = {reading.t_ns / NS_PER_S:.2f} s: {data.describe()}; "
                     "it stays down until ~/reset"
                 )
             elif kind == "watchdog":

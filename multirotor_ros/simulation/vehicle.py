@@ -155,6 +155,11 @@ class Crash(NamedTuple):
     tilt_rad: float  # angle between its body z axis and world up as it lies [rad]
     p_WB_W: FloatArray  # (3,) where it lies, world ENU [m]
 
+    def describe(self) -> str:
+        """How it hit the ground, for a log line."""
+        tilt_deg = math.degrees(self.tilt_rad)
+        return f"hit the ground at {self.touchdown_speed_m_s:.1f} m/s, lies tilted {tilt_deg:.0f} deg"
+
 
 @dataclass
 class _Schedule:
@@ -495,6 +500,16 @@ class VehicleSimulator:
         start_ns = self.t_ns
         self.x = self.integrator.advance(self.t_s, self.x, self.commands_rad_s, steps, self.crashes)
         self.t_ns += steps * self.dt_ns
+        readings += self.take_crashes(start_ns, self.dt_ns)
+
+    def take_crashes(self, start_ns: int, step_ns: int) -> list[Reading]:
+        """``crash`` readings of the last advance's crashes (steps of ``step_ns`` from ``start_ns``).
+
+        The crashed vehicles' rotors are commanded to stop. For :meth:`run_until` and for callers that
+        step ``self.x`` with an integrator of their own and ``self.crashes`` (the MAVLink bridge's
+        physics, whose frames set the step).
+        """
+        readings = []
         for k in np.flatnonzero(self.crashes.crash_step >= 0).tolist():
             self.commands_rad_s[k] = 0.0
             self._deadline_stale = True
@@ -505,8 +520,9 @@ class VehicleSimulator:
                 math.acos(min(1.0, max(-1.0, cos_tilt))),
                 self.x[k, S.POSITION].copy(),
             )
-            hit_ns = start_ns + (int(self.crashes.crash_step[k]) + 1) * self.dt_ns
+            hit_ns = start_ns + (int(self.crashes.crash_step[k]) + 1) * step_ns
             readings.append(Reading("crash", hit_ns, crash, k))
+        return readings
 
     def acceleration_W(self, vehicle: int = 0) -> FloatArray:
         """A vehicle's true acceleration [m/s^2], world ENU (dv/dt, no gravity), over the last IMU step."""
