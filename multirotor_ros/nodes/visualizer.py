@@ -41,6 +41,10 @@ from multirotor_ros.nodes.visual_messages import BASE_FRAME, VehicleView, vehicl
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
+# The path's poses carry positions only: each is given the identity attitude (w, x, y, z).
+UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
+UPRIGHT.flags.writeable = False
+
 PARAMETERS = [
     NodeParameter("airframe", "x8_octorotor", "airframe config name or YAML path", read_only=True),
     NodeParameter("rate_hz", 10.0, "rate of markers and path", "Hz", 0.1, 100.0, read_only=True),
@@ -62,15 +66,16 @@ class VisualizerNode(Node):
         airframe = load_airframe(p["airframe"])
         self._n_rotors = airframe.n_rotors
         self._speed_limit = OVERSIZED_SPEED_FACTOR * airframe.rotor_speed_max_rad_s
+        self._path: deque[tuple[float, float, float]] = deque(
+            maxlen=max(2, round(p["path_duration_s"] * p["rate_hz"]))
+        )
         self.view = VehicleView(
             world_frame=p["frame_prefix"] + "odom",
             base_frame=p["frame_prefix"] + BASE_FRAME,
             rotor_positions_m=airframe.rotor_positions_m,
             rotor_radius_m=airframe.rotor_radius_m,
             speed_range_rad_s=(airframe.rotor_speed_min_rad_s, airframe.rotor_speed_max_rad_s),
-        )
-        self._path: deque[tuple[float, float, float]] = deque(
-            maxlen=max(2, round(p["path_duration_s"] * p["rate_hz"]))
+            path_m=self._path,  # the markers draw the path as it grows
         )
         self._position: tuple[float, float, float] | None = None
         self._refusals = {
@@ -124,14 +129,12 @@ class VisualizerNode(Node):
         stamp = self.get_clock().now().to_msg()
         if self._position is not None:
             self._path.append(self._position)
-        self.view.path_m = self._path
         self._markers_pub.publish(vehicle_markers(self.view, stamp))
         path = Path()
         path.header.stamp = stamp
         path.header.frame_id = self.view.world_frame
         path.poses = [
-            pose_message(stamp, self.view.world_frame, np.array(position), np.array([1.0, 0.0, 0.0, 0.0]))
-            for position in self._path
+            pose_message(stamp, self.view.world_frame, position, UPRIGHT) for position in self._path
         ]
         self._path_pub.publish(path)
 
