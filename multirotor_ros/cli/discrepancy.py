@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from multirotor_ros.cli import CommandError
+
+if TYPE_CHECKING:
+    from multirotor_ros.discrepancy.workflow import DiscrepancyReport
 
 COMMAND = "discrepancy"
 HELP = "find where a model and a flight log disagree, name the missing effect, add it and show the gap shrink"
@@ -25,6 +30,8 @@ EPILOG = """\
 examples:
   multirotor discrepancy --airframe x8_octorotor --log flight.csv --effects none --out gap
   multirotor discrepancy --airframe x8_octorotor --log flight.csv --max-effects 2 --out gap
+  multirotor discrepancy --airframe x8_octorotor --log hover.csv --effects none --out gap \
+      --propose-experiment next_flight.csv
 """
 
 
@@ -46,6 +53,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="do not remove a constant accelerometer bias along body x/y (removed by default when the log "
         "measures acceleration)",
+    )
+    parser.add_argument(
+        "--propose-experiment",
+        type=Path,
+        metavar="FILE",
+        help="when the log cannot tell look-alikes apart, write the setpoint file (multirotor simulate "
+        "--setpoints) of the short flight that would, with its expected separation",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
@@ -70,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         )
     except (AirframeError, ValueError, OSError) as error:
         raise CommandError(str(error)) from None
+    if args.propose_experiment is not None:
+        _propose_experiment(report, args.propose_experiment, progress)
     try:
         written = report.write(args.out, plots=not args.no_plots)
     except OSError as error:
@@ -87,3 +103,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
+
+
+def _propose_experiment(report: DiscrepancyReport, path: Path, progress: Callable[[str], None]) -> None:
+    """Write the flight that tells the report's look-alikes apart, and say so in the report."""
+    from multirotor_ros.discrepancy.experiment import propose_experiment
+
+    if not report.ambiguous_with:
+        print(f"no experiment proposed: this log names {report.verdict()} without a look-alike")
+        return
+    progress("flying each look-alike through the candidate manoeuvres (noise-free) to propose an experiment")
+    proposal = propose_experiment(report)
+    assert proposal is not None  # the report has look-alikes
+    try:
+        proposal.write_setpoints(path)
+    except OSError as error:
+        raise CommandError(f"{path}: cannot write: {error}") from None
+    report.proposed_experiment = proposal.to_json(path)
+    report.explanation.append(proposal.summary())
+    print(f"proposed experiment: {path} ({proposal.manoeuvre.name}, {proposal.manoeuvre.duration_s:g} s)")

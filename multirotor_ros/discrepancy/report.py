@@ -170,6 +170,14 @@ def render_html(report: DiscrepancyReport, images: list[Path]) -> str:
         if report.missing_effects
         else "Missing effect: <b>none</b> (no candidate explains a significant part of the disagreement)"
     )
+    proposal = report.proposed_experiment
+    experiment = (
+        f"<br>To tell them apart, fly <code>{e(proposal['setpoint_file'])}</code> "
+        f"({e(proposal['manoeuvre'])}, {proposal['duration_s']:g} s): worst expected separation "
+        f"z = {proposal['worst_z']:.1f}"
+        if proposal
+        else ""
+    )
     params = ", ".join(
         f"{e(k)} = {_fmt(v)}"
         + (f" &plusmn; {_fmt(report.std.get(k))}" if report.std.get(k) is not None else "")
@@ -276,7 +284,7 @@ th {{ background: #f0f0f0; }} figure {{ margin: 1em 0; }} img {{ max-width: 100%
 <h1>Model discrepancy report</h1>
 <p>Log <code>{e(report.log)}</code>, airframe <code>{e(report.airframe)}</code>, baseline effects:
 <code>{e(", ".join(report.baseline_effects) or "none (thrust and gravity only)")}</code>.</p>
-<p class="verdict">{verdict}{("<br>Parameters: " + params) if params else ""}</p>
+<p class="verdict">{verdict}{("<br>Parameters: " + params) if params else ""}{experiment}</p>
 <h2>Why</h2><ul>{listing}</ul>
 <h2>The gap, before and after</h2>{gap}
 <h2>Where the baseline disagrees with the log</h2>
