@@ -248,7 +248,8 @@ def _run(effectiveness_filter: EffectivenessFilter, diagnoses, start_s: float = 
 
 
 def test_the_filter_starts_healthy_and_approaches_a_confident_estimate_at_first_order() -> None:
-    effectiveness_filter = EffectivenessFilter(8, time_constant_s=0.2)
+    # A stopped rotor leaves at the stop's own time constant.
+    effectiveness_filter = EffectivenessFilter(8, time_constant_s=1.0, stop_time_constant_s=0.2)
     estimate = _without(8, 3)
     outputs = _run(effectiveness_filter, [(estimate, CONFIDENT)] * 251)
     np.testing.assert_array_equal(outputs[0], np.ones(8))
@@ -342,8 +343,9 @@ def test_a_stopped_rotor_leaves_the_allocation_after_a_few_time_constants() -> N
     effectiveness_filter = EffectivenessFilter(8, time_constant_s=0.2)
     outputs = _run(effectiveness_filter, [(np.array([1, 1, 0.01, 1, 1, 1, 1, 1.0]), CONFIDENT)] * 250)
     left_out = np.flatnonzero(outputs[:, 2] < DEAD_ROTOR_EFFECTIVENESS)[0] / RATE_HZ
-    # A stopped verdict heads for 0, not for the estimate.
-    assert left_out == pytest.approx(0.2 * math.log(1.0 / DEAD_ROTOR_EFFECTIVENESS), abs=0.01)
+    # A stopped verdict heads for 0, not for the estimate, at the stop's own time constant.
+    stop_s = effectiveness_filter.stop_time_constant_s
+    assert left_out == pytest.approx(stop_s * math.log(1.0 / DEAD_ROTOR_EFFECTIVENESS), abs=0.01)
     assert allocator.allocate(hover, (0, 0, 0), outputs[-1]).omega_rad_s[2] == 0.0
 
 

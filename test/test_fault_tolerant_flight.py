@@ -19,6 +19,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from test_nodes_sim_control import Vehicle, stamp_s, start_vehicle, stop_vehicles
 
+from multirotor_ros.control.fault_tolerance import EffectivenessFilter
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message, rotor_effectiveness_message
 from multirotor_ros.refusals import Refusal
 
@@ -88,17 +89,17 @@ def one_rotor_at(rotor: int, effectiveness: float, n_rotors: int = 8) -> list[fl
     return [effectiveness if k == rotor else 1.0 for k in range(1, n_rotors + 1)]
 
 
-def assert_gradual(t_s: np.ndarray, commands: np.ndarray) -> None:
+def assert_gradual(t_s: np.ndarray, commands: np.ndarray, min_rise_s: float = 0.2) -> None:
     """Check that a rotor's command changed gradually, as a switch of the allocation would not.
 
-    10 % to 90 % of the change in more than 0.2 s, no step above 15 % of it (a switch: all of it in one
-    period). Times are the commands' stamps: the probe may miss a command when the loop runs fast.
+    10 % to 90 % of the change in more than ``min_rise_s``, no step above 15 % of it (a switch: all of it
+    in one period). Times are the commands' stamps: the probe may miss a command when the loop runs fast.
     """
     change = commands[-1] - commands[0]
     progress = (commands - commands[0]) / change
     rise_s = t_s[np.argmax(progress >= 0.9)] - t_s[np.argmax(progress >= 0.1)]
     largest_step = np.abs(np.diff(commands)).max() / abs(change)
-    assert rise_s > 0.2 and largest_step < 0.15, (rise_s, largest_step)
+    assert rise_s > min_rise_s and largest_step < 0.15, (rise_s, largest_step)
 
 
 @pytest.mark.ros
@@ -189,7 +190,8 @@ def test_with_the_parameter_off_a_diagnosis_changes_nothing_and_reallocation_com
         assert hover_error(vehicle, start + 1.0, start + 3.0).max() < 0.02
         _, nominal = rotor_3(start + 1.0, start + 3.0)
         assert "reallocating" not in vehicle.controller.log_text()
-        # On: rotor 3 is left out, gradually (the filter's time constant, 0.2 s), and the X8 flies on 7.
+        # On: rotor 3 is left out, gradually (the filter's time constant for a stopped rotor, 0.05 s), and
+        # the X8 flies on 7.
         # Each window starts before its change: in lockstep simulated time runs on while the change
         # travels, and a window opened after it would miss the start of the transition.
         switched = stamp_s(vehicle.latest())
@@ -197,7 +199,7 @@ def test_with_the_parameter_off_a_diagnosis_changes_nothing_and_reallocation_com
         assert result.successful
         t_s, reallocated = rotor_3(switched, switched + 3.0)
         assert reallocated[-1] < 0.5 * nominal.mean()
-        assert_gradual(t_s, reallocated)
+        assert_gradual(t_s, reallocated, min_rise_s=EffectivenessFilter.DEFAULT_STOP_TIME_CONSTANT_S)
         assert hover_error(vehicle, switched, switched + 3.0).max() < 0.15
         # A message for a quadrotor is refused (counted, logged once) and leaves the diagnosis in force...
         publish_diagnosis(probe, "/ft3", [1.0] * 4, std=0.01)

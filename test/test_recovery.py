@@ -41,12 +41,6 @@ def test_x8_recovers_from_a_rotor_fault_on_a_trajectory(case: FaultCase) -> None
     assert not outcome.off.meets_issue, outcome
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the diagnoser's confident estimate of the stopped rotor falls from 0.57 to 0.1 over 0.45 s "
-    "after the alarm; allocating with those partial values while the rotor gives nothing swings the "
-    "hexarotor (peak 1.2 m; an instant confident 'stopped' verdict holds it within 0.12 m)",
-)
 def test_hexarotor_with_a_rotor_stopped_holds_its_hover() -> None:
     outcome = fly_hover(HoverCase("hexarotor_f550", (1,), duration_s=DURATION_S))
     assert outcome.detected_motor == 1

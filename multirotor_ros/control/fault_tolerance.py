@@ -14,7 +14,11 @@ that stream into the vector given to ``Allocator.allocate(..., effectiveness)``:
   RECOVERED_EFFECTIVENESS arrives, so a noisy estimate of the idle rotor drifting above the threshold
   does not put it back;
 - the output moves towards its target with first-order dynamics (time constant ``time_constant_s``), so
-  a diagnosis that appears or clears changes the commands smoothly, never in one step;
+  a diagnosis that appears or clears changes the commands smoothly, never in one step. A rotor latched
+  as stopped leaves faster (``stop_time_constant_s``): it gives nothing whatever it is asked, and every
+  moment it is still counted on leaves its share of the wrench undone. A hexarotor whose rotor stopped
+  in hover, declared 0.03 s after, swings by 4 m when the rotor leaves with 0.2 s, 0.9 m with 0.1 s,
+  0.18 m with 0.05 s and 0.11 m with 0.03 s (test_recovery.py's hover case);
 - only a stopped rotor may go below ``floor``, down to 0 (the allocator leaves it out below
   DEAD_ROTOR_EFFECTIVENESS). Any other rotor is never taken as weaker than ``floor``: a healthy rotor
   wrongly reported at 15 % is allocated as if at ``floor``, which the feedback law absorbs.
@@ -61,22 +65,32 @@ class EffectivenessFilter:
     # e_i = 0.5, about 40 % of the wrench error of a stopped rotor left uncompensated, which the law
     # holds (test_fault_tolerance.py flies a healthy rotor reported at 50 %).
     DEFAULT_FLOOR: ClassVar[float] = 0.3
+    # Time constant [s] of a stopped rotor's way out (module docstring): fast enough for a hexarotor to
+    # hold its hover, and slow enough that the commands change by no more per period than when a rotor
+    # comes back at DEFAULT_TIME_CONSTANT_S (the fade band makes that the fastest change otherwise).
+    DEFAULT_STOP_TIME_CONSTANT_S: ClassVar[float] = 0.05
 
     def __init__(
         self,
         n_rotors: int,
         time_constant_s: float = DEFAULT_TIME_CONSTANT_S,
         floor: float = DEFAULT_FLOOR,
+        stop_time_constant_s: float = DEFAULT_STOP_TIME_CONSTANT_S,
     ):
         if n_rotors < 1:
             raise ValueError(f"n_rotors must be >= 1, got {n_rotors}")
-        if not (math.isfinite(time_constant_s) and time_constant_s > 0):
-            raise ValueError(f"time_constant_s must be > 0, got {time_constant_s}")
+        for name, value in (
+            ("time_constant_s", time_constant_s),
+            ("stop_time_constant_s", stop_time_constant_s),
+        ):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be > 0, got {value}")
         if not DEAD_ROTOR_EFFECTIVENESS <= floor <= 1.0:
             raise ValueError(f"floor must lie in [{DEAD_ROTOR_EFFECTIVENESS}, 1], got {floor}")
         self.n_rotors = n_rotors
         self.time_constant_s = time_constant_s
         self.floor = floor
+        self.stop_time_constant_s = stop_time_constant_s
         self.reset()
 
     def reset(self) -> None:
@@ -122,7 +136,8 @@ class EffectivenessFilter:
         target = self.target(estimate, std)
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
-        self._effectiveness += (target - self._effectiveness) * -math.expm1(-dt / self.time_constant_s)
+        time_constant = np.where(self._stopped, self.stop_time_constant_s, self.time_constant_s)
+        self._effectiveness += (target - self._effectiveness) * -np.expm1(-dt / time_constant)
         return self._effectiveness.copy()
 
     def _vector(self, values: ArrayLike, name: str) -> FloatArray:

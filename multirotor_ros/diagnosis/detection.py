@@ -27,6 +27,12 @@ into the allocation. So a diagnosis stands, as sure as its last evidence, until 
 σ_c has a floor (``noise_floor_fraction`` of a stopped rotor's residual in that channel) so that a
 noise-free simulation does not get an infinitely sensitive detector.
 
+A stopped rotor can be declared from outside (:meth:`FaultDetector.declare_stopped`: the fast test of
+:mod:`multirotor_ros.diagnosis.stopped`, which sees the step before the observer's residual has reached
+it): the alarm names that rotor at effectiveness 0, as sure as the test's estimate, and the observer's
+residual is no evidence about it until it has had time to follow the step (``no_evidence_s``): its ramp
+towards the fault would otherwise pull the estimate back to a partial loss.
+
 Breaks in the data are not evidence. :meth:`FaultDetector.interrupt` (the caller skipped samples, e.g.
 an observer transient after stepping over missing ones) restarts the persistence and clearing clocks: an
 alarm condition must hold on consecutive evidence. :meth:`FaultDetector.relearn` (after a gap or a
@@ -136,6 +142,7 @@ class _State:
     evidence_variance: FloatArray  # (B,) loss_std² of the faulty rotor, averaged over its evidence
     ambiguous: BoolArray  # (B,) the alarm's coaxial partner fits almost as well (last evidence)
     relearning: BoolArray  # (B,) learning the noise again after a break (module docstring)
+    evidence_from_t: FloatArray  # (B,) no sample before this time is evidence (after a declared stop)
     relearn_started_t: float | None = None
     started_t: float | None = None
     warmed_up: bool = False
@@ -184,6 +191,7 @@ class FaultDetector:
             evidence_variance=np.full(b, np.nan),
             ambiguous=np.zeros(b, dtype=bool),
             relearning=np.zeros(b, dtype=bool),
+            evidence_from_t=np.full(b, -np.inf),
         )
 
     def interrupt(self) -> None:
@@ -214,6 +222,41 @@ class FaultDetector:
     def suspicious(self) -> BoolArray:
         """(B,) in alarm, or a suspect above threshold waiting for persistence."""
         return self._state.alarm | ~np.isnan(self._state.pending_since)
+
+    @property
+    def learning(self) -> BoolArray:
+        """(B,) learning the residual noise (first warm-up, or again after a break): no alarm possible."""
+        return np.full(self.batch, not self._state.warmed_up) | self._state.relearning
+
+    @property
+    def calm(self) -> BoolArray:
+        """(B,) nothing suspected and the noise known: a sample that may teach the noise."""
+        return ~self.suspicious & ~self.learning
+
+    def declare_stopped(
+        self, t: float, vehicles: BoolArray, rotor: FloatArray, std: FloatArray, no_evidence_s: float
+    ) -> None:
+        """Rotor ``rotor`` (B,) of the ``vehicles`` (B,) stopped at ``t``, its loss known to ``std`` (B,).
+
+        The alarm names it at effectiveness 0 (onset ``t`` unless already in alarm on it), and the
+        observer's residual is no evidence about it for ``no_evidence_s`` (module docstring). A vehicle in
+        alarm on another rotor keeps that alarm: the detector names one faulty rotor.
+        """
+        state = self._state
+        apply = vehicles & (~state.alarm | (state.rotor == rotor))
+        if not apply.any():
+            return
+        rows = np.flatnonzero(apply)
+        state.onset_t[rows] = np.where(state.alarm[rows], state.onset_t[rows], t)
+        state.alarm[rows] = True
+        state.rotor[rows] = rotor[rows]
+        state.effectiveness[rows] = 1.0
+        state.effectiveness[rows, rotor[rows]] = 0.0
+        state.evidence_variance[rows] = std[rows] ** 2
+        state.ambiguous[rows] = False
+        state.pending_since[rows] = np.nan
+        state.quiet_since[rows] = np.nan
+        state.evidence_from_t[rows] = t + no_evidence_s
 
     @property
     def warmed_up(self) -> bool:
@@ -285,7 +328,9 @@ class FaultDetector:
         faulty = state.rotor
         faulty_loss = np.clip(loss[rows, faulty], 0.0, 1.0)
         current = state.effectiveness[rows, faulty]
-        evidence = s.k_sigma * loss_std[rows, faulty] <= np.maximum(1.0 - current, s.min_loss)
+        evidence = (s.k_sigma * loss_std[rows, faulty] <= np.maximum(1.0 - current, s.min_loss)) & (
+            t >= state.evidence_from_t
+        )
         blend, noise_blend, base_blend = self._blends(dt_s)
         gain = np.where(evidence, blend, 0.0)  # a sample that is no evidence leaves both averages alone
         state.effectiveness[rows, faulty] = np.where(

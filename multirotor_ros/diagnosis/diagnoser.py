@@ -1,14 +1,20 @@
 """Rotor fault diagnosis end to end: residuals, detection, isolation, effectiveness, and words for people.
 
-:class:`RotorDiagnoser` runs :class:`~multirotor_ros.diagnosis.residuals.WrenchResidualGenerator` and
-:class:`~multirotor_ros.diagnosis.detection.FaultDetector` together on a batch of vehicles (one for
-the identifier node, many for the fault campaign). Whenever the observer (re)starts (the first
-sample, or after :meth:`RotorDiagnoser.restart_observer`: a gap in the data), the detector sees
-nothing for ``settle_s`` (a few observer convergence times), so that the observer's transient is not
-taken for a fault, and then learns the residual noise again before it may alarm
-(:meth:`~multirotor_ros.diagnosis.detection.FaultDetector.relearn`). :meth:`RotorDiagnoser.hold`
-keeps a shorter stretch of samples from the detector (the transient after stepping over a few
-missing samples) without restarting anything.
+:class:`RotorDiagnoser` runs :class:`~multirotor_ros.diagnosis.residuals.WrenchResidualGenerator`,
+:class:`~multirotor_ros.diagnosis.detection.FaultDetector` and the fast
+:class:`~multirotor_ros.diagnosis.stopped.StoppedRotorTest` together on a batch of vehicles (one for
+the identifier node, many for the fault campaign). A stop the fast test declares goes to the detector
+at once (:meth:`~multirotor_ros.diagnosis.detection.FaultDetector.declare_stopped`), which then names
+that rotor at effectiveness 0 instead of the partial loss the observer's residual shows on its way to
+the step; the observer's residual is no evidence about it for ``settle_s``.
+
+Whenever the observer (re)starts (the first sample, or after :meth:`RotorDiagnoser.restart_observer`:
+a gap in the data), the detector sees nothing for ``settle_s`` (a few observer convergence times), so
+that the observer's transient is not taken for a fault, and then learns the residual noise again
+before it may alarm (:meth:`~multirotor_ros.diagnosis.detection.FaultDetector.relearn`).
+:meth:`RotorDiagnoser.hold` keeps a shorter stretch of samples from the detector (the transient after
+stepping over a few missing samples) without restarting anything. The fast test sees the samples the
+detector sees, and forgets its window at every such break.
 
 :func:`rotor_reports` turns one vehicle's state into one :class:`RotorReport` per rotor: the
 ``diagnostics`` topic's statuses (OK / WARN / ERROR, the estimated effectiveness, a message).
@@ -29,6 +35,7 @@ from multirotor_ros.diagnosis.detection import (
     coaxial_partners,
 )
 from multirotor_ros.diagnosis.residuals import ObserverSettings, ResidualSample, WrenchResidualGenerator
+from multirotor_ros.diagnosis.stopped import StoppedRotorTest, StopTestSettings
 from multirotor_ros.model.model import Model
 from multirotor_ros.model.rotation import BoolArray, FloatArray
 from multirotor_ros.model.state import StateBatch
@@ -55,11 +62,13 @@ class RotorDiagnoser:
         batch: int = 1,
         observer: ObserverSettings | None = None,
         detection: DetectionSettings | None = None,
+        stop_test: StopTestSettings | None = None,
     ):
         self.observer_settings = observer or ObserverSettings()
         self.residuals = WrenchResidualGenerator(model, self.observer_settings)
         self.partners = coaxial_partners(model.airframe)
         self.detector = FaultDetector(self.residuals.wrench_scale, self.partners, batch, detection)
+        self.stop_test = StoppedRotorTest(self.residuals.wrench_scale, self.partners, batch, stop_test)
         self.batch = batch
         self.settle_s = 3.0 * self.observer_settings.convergence_time_s
         self._hold_until: float | None = None  # the detector sees no sample before this time
@@ -87,6 +96,7 @@ class RotorDiagnoser:
         """Keep the samples before ``until_t`` from the detector: they are no evidence, nor noise."""
         self._hold_until = until_t if self._hold_until is None else max(self._hold_until, until_t)
         self.detector.interrupt()
+        self.stop_test.clear()
 
     def update(self, state: StateBatch, dt_s: float) -> DiagnosisSample:
         """One measurement of every vehicle, all taken at one time; ``dt_s`` since the previous one."""
@@ -94,14 +104,30 @@ class RotorDiagnoser:
         if not self.residuals.started:
             self._hold_until = t + self.settle_s
             self.detector.relearn()
+            self.stop_test.clear()
         sample = self.residuals.update(state, dt_s)
         if sample.model_change_wrench is not None:
             self.detector.shift_baseline(sample.model_change_wrench)
         if self._hold_until is not None and t < self._hold_until - 1e-9:
             return DiagnosisSample(sample, None)
         self._hold_until = None
+        if sample.raw_wrench is None:
+            self.stop_test.clear()
+        else:
+            self._test_for_a_stop(t, dt_s, sample.raw_wrench, sample.signatures)
         self.last = self.detector.update(t, dt_s, sample.wrench, sample.signatures)
         return DiagnosisSample(sample, self.last)
+
+    def _test_for_a_stop(self, t: float, dt_s: float, raw_wrench: FloatArray, signatures: FloatArray) -> None:
+        """Run the fast test on this sample; hand the stops it declares to the detector."""
+        detector = self.detector
+        verdict = self.stop_test.update(
+            t, dt_s, raw_wrench, signatures, detector.baseline, detector.calm, ~detector.learning
+        )
+        if verdict.stopped.any():
+            detector.declare_stopped(
+                t, verdict.stopped, verdict.rotor.astype(int), verdict.loss_std, self.settle_s
+            )
 
     @property
     def any_suspicion(self) -> BoolArray:

@@ -15,6 +15,14 @@ included) and drag torque (σ_i the spin sign, f_i the model's torque factor). T
 compensates a fault within a fraction of a second, so position and attitude errors vanish; the wrench
 residual does not, because the model is fed the speeds the rotors actually turn at.
 
+The observer reaches a step in about ``convergence_time_s``, and what it reports on the way is a
+fraction of the fault. ``raw_wrench`` is the same wrench from the last interval alone, unfiltered: the
+measured rates' change over the interval minus the model's mean rate over it (for a measured
+acceleration, that acceleration minus the model's). It is noisy (a whole stopped rotor is about 20
+noise levels in roll and pitch on the shipped airframes, well under one in thrust and yaw) but shows a
+step in full from the first interval after it, which is what a test of "this rotor stopped" needs
+(:mod:`multirotor_ros.diagnosis.stopped`).
+
 Observer gains are scaled per channel to what one stopped rotor does at hover (its thrust over the
 mass, its torques over the inertia), so that every channel converges to a stopped rotor in
 ``convergence_time_s`` and chatters by the same fraction of that signal.
@@ -71,6 +79,9 @@ class ResidualSample:
     wrench: FloatArray  # (B, 4) F_z [N], tau_B [N m]
     signatures: FloatArray  # (B, 4, N) each rotor's own wrench contribution
     model_change_wrench: FloatArray | None = None  # (B, 4) residual shift from a model swap at this sample
+    # (B, 4) the wrench residual of the last interval alone, unfiltered (module docstring); None at the
+    # first sample after a start and at a model swap (no interval with one model)
+    raw_wrench: FloatArray | None = None
 
 
 def stopped_rotor_scales(model: Model) -> tuple[FloatArray, FloatArray]:
@@ -148,6 +159,9 @@ class WrenchResidualGenerator:
         self.translational = SuperTwistingObserver(lambda_gain[:3], alpha_gain[:3], tau)
         self.rotational = SuperTwistingObserver(lambda_gain[3:], alpha_gain[3:], tau)
         self._measured_accel_residual: FloatArray | None = None
+        # The last sample's measured rates and model rates (v_W, w_B, a_model_W, w_dot_model_B), for
+        # the raw residual of the next interval.
+        self._last_rates: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
         self._previous_model: Model | None = None
         self._evaluated: tuple[StateBatch, Model, tuple[EffectContext, FloatArray, FloatArray]] | None = None
         self.set_model(model)
@@ -173,6 +187,7 @@ class WrenchResidualGenerator:
         self.translational.y_hat = None
         self.rotational.y_hat = None
         self._measured_accel_residual = None
+        self._last_rates = None
 
     @property
     def started(self) -> bool:
@@ -211,6 +226,8 @@ class WrenchResidualGenerator:
         model_change = None
         if self._previous_model is not None:
             model_change = self._carry_over(ctx, a_model_W, w_dot_model_B)
+            self._last_rates = None
+        raw_wrench = self._raw_wrench(ctx, state, dt_s, a_model_W, w_dot_model_B)
         angular_accel_B = self.rotational.update(dt_s, state.w_WB_B, w_dot_model_B)
         if state.a_WB_W is None:
             accel_W = self.translational.update(dt_s, state.v_WB_W, a_model_W)
@@ -224,18 +241,47 @@ class WrenchResidualGenerator:
                     raw - self._measured_accel_residual
                 )
             accel_W = self._measured_accel_residual
-        mass = np.broadcast_to(np.asarray(self.model.mass_kg, dtype=float), (accel_W.shape[0],))
-        thrust_residual = mass * np.einsum("bi,bi->b", accel_W, ctx.e_z_W)
-        wrench = np.concatenate(
-            [thrust_residual[:, None], angular_accel_B @ self.model.inertia_kg_m2.T], axis=1
-        )
         return ResidualSample(
             accel_W=accel_W,
             angular_accel_B=angular_accel_B,
-            wrench=wrench,
+            wrench=self._as_wrench(ctx, accel_W, angular_accel_B),
             signatures=self.signatures(ctx),
             model_change_wrench=model_change,
+            raw_wrench=raw_wrench,
         )
+
+    def _as_wrench(self, ctx: EffectContext, accel_W: FloatArray, angular_accel_B: FloatArray) -> FloatArray:
+        """(B, 4) body wrench of a world acceleration and a body angular acceleration residual."""
+        mass = np.broadcast_to(np.asarray(self.model.mass_kg, dtype=float), (accel_W.shape[0],))
+        thrust_residual = mass * np.einsum("bi,bi->b", accel_W, ctx.e_z_W)
+        return np.concatenate(
+            [thrust_residual[:, None], angular_accel_B @ self.model.inertia_kg_m2.T], axis=1
+        )
+
+    def _raw_wrench(
+        self,
+        ctx: EffectContext,
+        state: StateBatch,
+        dt_s: float,
+        a_model_W: FloatArray,
+        w_dot_model_B: FloatArray,
+    ) -> FloatArray | None:
+        """(B, 4) unfiltered wrench residual of the interval ending at ``state`` (module docstring).
+
+        None when there is no previous sample of the same model; this sample's rates are kept for the next.
+        """
+        last = self._last_rates
+        self._last_rates = (state.v_WB_W.copy(), state.w_WB_B.copy(), a_model_W, w_dot_model_B)
+        if last is None or not dt_s > 0:
+            return None
+        last_v_W, last_w_B, last_a_model_W, last_w_dot_model_B = last
+        # The model's rate enters as the mean of both ends of the interval, as in the observer.
+        angular = (state.w_WB_B - last_w_B) / dt_s - 0.5 * (w_dot_model_B + last_w_dot_model_B)
+        if state.a_WB_W is not None:
+            translational = state.a_WB_W - a_model_W
+        else:
+            translational = (state.v_WB_W - last_v_W) / dt_s - 0.5 * (a_model_W + last_a_model_W)
+        return self._as_wrench(ctx, translational, angular)
 
     def _evaluate(self, state: StateBatch) -> tuple[EffectContext, FloatArray, FloatArray]:
         """The model at ``state``: its context and accelerations (world, body).

@@ -16,7 +16,11 @@ fit estimates it): an axis with noisy accelerations does not drown the others, a
   thrust unbalances the torques the most clearly); its factor on that rotor is then linear.
 - Standard deviations: the sandwich (Newey–West) covariance with a bandwidth taken from the residuals'
   autocorrelation, because closed-loop flight residuals are not white; the white-noise formula would
-  give smaller, overconfident values (the inflation is reported in the notes).
+  give smaller, overconfident values (the inflation is reported in the notes). Added in quadrature: the
+  shift an accelerometer bias along body z would cause (:func:`bias_sensitivity`). That bias is constant
+  over a log, so no resampling of the log's residuals sees it, and it is nearly collinear with the
+  thrust, so it cannot be fitted; it moves k_f, a mass, a vertical force or a thrust factor by about
+  bias/g (0.2 % for the 2 mg of seed 1's IMU), many times their noise standard deviation.
 - A parameter whose standard deviation exceeds half of max(|value - neutral|, scale) is not identifiable
   on this log (:mod:`.parameters`; the thresholds are :class:`~multirotor_ros.ident.settings.FitSettings`):
   it is held (at its starting value), the others are refitted, and the reason is reported: nearly
@@ -175,19 +179,20 @@ def _without_nuisance(
     Fitting theta to the projected problem gives the same theta and residual as fitting theta together with
     the nuisance parameters, so every later step (bounds, searches, covariance) need not know about them.
     """
+    return _project_out(samples, nuisance, y), _project_out(samples, nuisance, Phi)
+
+
+def _project_out(samples: FlightSamples, nuisance: FloatArray, values: FloatArray) -> FloatArray:
+    """``values`` (T, 3, ...) minus their least-squares projection on the nuisance columns (T, 3, K)."""
     key = ("nuisance basis",)
     if key not in samples.design_cache:
         # Zero outside the usable rows, so that projecting every row leaves the unusable ones as they are.
         masked = np.where(samples.valid[:, None, None], nuisance, 0.0)
         samples.design_cache[key] = np.linalg.qr(masked.reshape(-1, masked.shape[2]))[0]
     q = samples.design_cache[key]
-
-    def project(values: FloatArray) -> FloatArray:
-        flat = values.reshape(q.shape[0], -1)
-        # Unusable rows may hold NaN (filter ends); their basis rows are zero, so they stay as they are.
-        return (flat - q @ (q.T @ np.nan_to_num(flat))).reshape(values.shape)
-
-    return project(y), project(Phi)
+    flat = values.reshape(q.shape[0], -1)
+    # Unusable rows may hold NaN (filter ends); their basis rows are zero, so they stay as they are.
+    return (flat - q @ (q.T @ np.nan_to_num(flat))).reshape(values.shape)
 
 
 def nuisance_estimate(samples: FlightSamples, residual_before_projection: FloatArray) -> FloatArray:
@@ -628,8 +633,9 @@ def assess(fitter: Fitter, model: Model) -> tuple[Uncertainty, FloatArray]:
     if free:
         refs = [sensitivity.refs[j] for j in free]
         X = sensitivity.columns[fitter.rows][:, :, free]
+        systematic = np.hypot(bias_sensitivity(fitter, model, X), command_timing_std(fitter.samples, refs))
         sd, covariance_note = _standard_deviations(
-            X, residual[fitter.rows], fitter.weights, fitter.samples.dt
+            X, residual[fitter.rows], fitter.weights, fitter.samples.dt, systematic
         )
         std.update(zip(refs, sd.tolist(), strict=True))
         notes.append(covariance_note)
@@ -687,18 +693,68 @@ def _sensitivity(fitter: Fitter, model: Model, design: Design, theta: FloatArray
 
 
 def _standard_deviations(
-    X: FloatArray, residual: FloatArray, weights: FloatArray, dt: float
+    X: FloatArray, residual: FloatArray, weights: FloatArray, dt: float, systematic: FloatArray
 ) -> tuple[FloatArray, str]:
-    """Newey-West standard deviations of the parameters of the columns X (n, 3, P), and a note on them."""
+    """Standard deviations of the parameters of the columns X (n, 3, P), and a note on them.
+
+    Newey-West for the noise, and in quadrature ``systematic`` (P,): what the log's errors that are
+    constant over it (an accelerometer bias, the timing of the rotor commands) leave uncertain, which
+    no resampling of the residuals can see (:func:`bias_sensitivity`, :func:`command_timing_std`).
+    """
     covariance, white, bandwidth = newey_west(X, residual, weights)
-    sd = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    sd_noise = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    sd = np.hypot(sd_noise, systematic)
     sd_white = np.sqrt(np.maximum(np.diag(white), 0.0))
-    inflation = float(np.median(sd / np.maximum(sd_white, 1e-300)))
+    inflation = float(np.median(sd_noise / np.maximum(sd_white, 1e-300)))
     note = (
         f"standard deviations: Newey-West (bandwidth {bandwidth} samples = {bandwidth * dt:.3g} s) for "
         f"autocorrelated residuals; the white-noise formula gives {inflation:.2g} times smaller values"
     )
+    if np.any(systematic > 0):
+        share = float(np.median(systematic / np.maximum(sd, 1e-300)))
+        note += (
+            "; with, in quadrature, the accelerometer's bias along the thrust (body z), which no fit can "
+            "tell from a thrust or mass change, and for a rotor time constant the timing of the logged "
+            f"commands (median share of the std {share:.2g})"
+        )
     return sd, note
+
+
+def command_timing_std(samples: FlightSamples, refs: Sequence[ParameterRef]) -> FloatArray:
+    """(P,) For a rotor time constant: the uncertainty of the logged commands' timing, 0 for the rest.
+
+    With motor_lag the log's rotor speeds are the commands the ESCs were given, samples of a staircase
+    that steps every command period at times the log does not show: the command in force may have been
+    set up to a period before or after the logged value suggests. A delay of the thrust is, to first
+    order, a change of the time constant by as much, so the time constant is known no better than that
+    timing: the standard deviation of a uniform offset over one command period, period / sqrt(12).
+    """
+    timing_std_s = samples.rotor_command_period_s / math.sqrt(12.0)
+    return np.array([timing_std_s if _is_rotor_time_constant(ref) else 0.0 for ref in refs])
+
+
+def bias_sensitivity(fitter: Fitter, model: Model, X: FloatArray) -> FloatArray:
+    """(P,) How far one standard deviation of accelerometer bias the fit does not model moves each parameter.
+
+    A bias b along body axis j adds m R_WB e_j b to the measured force m (a_W + g e_z). Along body z it is
+    nearly collinear with the thrust, so it is not fitted (FlightSamples.unfitted_bias_axes): the
+    least-squares parameters of the columns X (n, 3, P) on the fitted rows move by (A^T A)^-1 A^T (m R e_j)
+    b (weighted as the fit, with the fitted nuisance projected out as in the fit). The bias is a draw of
+    the IMU (std ``accelerometer_bias_std_m_s2``), independent per axis: the shifts add in quadrature.
+    """
+    samples = fitter.samples
+    axes = samples.unfitted_bias_axes()
+    n_parameters = X.shape[2]
+    if not axes or n_parameters == 0:
+        return np.zeros(n_parameters)
+    columns = float(np.asarray(model.mass_kg)) * samples.R_WB[:, :, axes]
+    if samples.nuisance is not None:
+        columns = _project_out(samples, samples.nuisance, columns)
+    sw = np.sqrt(fitter.weights)[None, :, None]
+    A = (X * sw).reshape(-1, n_parameters)
+    B = (columns[fitter.rows] * sw).reshape(-1, len(axes))
+    shift = np.linalg.lstsq(A, B, rcond=None)[0]  # (P, axes): parameter change per m/s^2 of bias
+    return samples.accelerometer_bias_std_m_s2 * np.sqrt(np.sum(shift**2, axis=1))
 
 
 def _identifiability(
@@ -892,10 +948,13 @@ def fit_parameters(
         finite = np.isfinite(profile)
         near = finite & (profile >= np.max(profile[finite]) - 1.0)
         spread = samples.t[near]
-        std[search.onset] = float(max((spread.max() - spread.min()) / 2, samples.dt / 2))
+        # A fault between two samples first shows, partly, in the later one: the onset found is a sample
+        # time within one interval of the true one either way, a uniform spread of dt / sqrt(3) at least.
+        std[search.onset] = float(max((spread.max() - spread.min()) / 2, samples.dt / math.sqrt(3.0)))
         notes.append(
             f"{search.onset[1]} std: half the span of onsets whose fit is within one (whitened) unit of the "
-            f"best; {search.rotor[1]} is a discrete choice (no std)"
+            f"best, at least the resolution of the sample interval; {search.rotor[1]} is a discrete choice "
+            "(no std)"
         )
     mass = np.asarray(fitted.mass_kg, dtype=float)
     acc_residual = np.where(fitter.rows[:, None], residual / mass, np.nan)

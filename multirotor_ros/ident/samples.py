@@ -132,6 +132,15 @@ class FlightSamples:
     # Columns (T, 3, K) of nuisance parameters fitted alongside every model (see accelerometer_bias_columns).
     nuisance: FloatArray | None = None
     nuisance_names: tuple[str, ...] = ()
+    # [m/s^2] Standard deviation of the IMU's constant bias per body axis (the airframe's sensors section,
+    # its datasheet's initial bias); 0 when the acceleration is not measured. An axis not fitted as a
+    # nuisance (body z always) biases the fit by an unknown amount of this size: the standard deviations
+    # include it (multirotor_ros.ident.fit.bias_sensitivity).
+    accelerometer_bias_std_m_s2: float = 0.0
+    # [s] How often the rotor commands change (the log's controller_rate_hz; its sample interval when it
+    # does not say): a logged command is a sample of a staircase whose steps the log does not time.
+    # 0: timed exactly (no uncertainty added).
+    rotor_command_period_s: float = 0.0
     # The thresholds the log was prepared with; its fits use them too.
     settings: FitSettings = field(default_factory=FitSettings)
     # Regression designs by model, filled by multirotor_ros.ident.fit.build_design.
@@ -187,14 +196,22 @@ class FlightSamples:
 
         An IMU's bias of a few mg (seed 1's 3DM-GX3: +-2 mg) is a force of m * bias that a slow flight's
         drag cannot be told from unless it is modelled: a measured a_W = a + R b makes m (a_W + g e_z) =
-        F + m R b. Body z is left out: there the bias is collinear with thrust and changes k_f by
-        bias/g (0.02 %). Only for measured accelerations (a differentiated position has no such bias).
+        F + m R b. Body z is left out: there the bias is nearly collinear with thrust (it changes k_f, a
+        mass or a vertical force by bias/g, 0.2 % for 2 mg); its uncertainty enters the standard
+        deviations instead (:meth:`unfitted_bias_axes`). Only for measured accelerations (a
+        differentiated position has no such bias).
         """
         if self.chain.order != 0:
             return
         self.nuisance = mass_kg * self.R_WB[:, :, :2]
         self.nuisance_names = ("accelerometer_bias_x_m_s2", "accelerometer_bias_y_m_s2")
         self.design_cache.clear()
+
+    def unfitted_bias_axes(self) -> list[int]:
+        """The body axes (0 x, 1 y, 2 z) along which an accelerometer bias may be and is not fitted."""
+        if self.chain.order != 0 or self.accelerometer_bias_std_m_s2 == 0:
+            return []
+        return [2] if self.nuisance is not None else [0, 1, 2]
 
 
 def concatenate_samples(parts: Sequence[FlightSamples]) -> FlightSamples:
@@ -264,6 +281,9 @@ def concatenate_samples(parts: Sequence[FlightSamples]) -> FlightSamples:
         warnings=labelled("warnings"),
         nuisance=nuisance,
         nuisance_names=tuple(names),
+        # One bias shared by the logs (each had its own, whose effects may partly cancel; not counted on).
+        accelerometer_bias_std_m_s2=max(part.accelerometer_bias_std_m_s2 for part in parts),
+        rotor_command_period_s=max(part.rotor_command_period_s for part in parts),
         settings=first.settings,
     )
 
@@ -392,8 +412,26 @@ def load_samples(
         source=source,
         notes=motion.notes + usable.notes + thrust_notes + [f"acceleration: {motion.chain.describe()}"],
         warnings=read_warnings + usable.warnings + thrust_warnings,
+        accelerometer_bias_std_m_s2=_accelerometer_bias_std(airframe) if motion.chain.order == 0 else 0.0,
+        rotor_command_period_s=_rate_period_s(flight, "controller_rate_hz", motion.dt),
         settings=settings,
     )
+
+
+def _rate_period_s(flight: FlightLog, key: str, default_s: float) -> float:
+    """[s] 1 / the rate the log's metadata gives under ``key``, ``default_s`` when it gives none."""
+    try:
+        period_s = 1.0 / float(flight.metadata[key])
+    except (KeyError, ValueError, ZeroDivisionError):
+        return default_s
+    return period_s if math.isfinite(period_s) and period_s > 0 else default_s
+
+
+def _accelerometer_bias_std(airframe: Airframe) -> float:
+    """[m/s^2] The airframe IMU's initial bias per axis (its sensors section, or the simulator's default)."""
+    from multirotor_ros.simulation.sensors import airframe_sensor_config
+
+    return airframe_sensor_config(airframe).accel_bias_initial_m_s2
 
 
 def _read_log(
@@ -586,11 +624,14 @@ def _derive_motion(
         notes.append("body rates: derived from the Euler angles (Savitzky-Golay derivative)")
     rate_segments = _segments(inputs_known & np.all(np.isfinite(w), axis=1), t, dt, settings.gap_factor)
     w_dot = _smooth_derivative(t, np.where(np.isfinite(w), w, 0.0), rate_segments, flt, dt)
+    a_W = np.asarray(motion.acceleration, dtype=float)
+    if order == 0:
+        a_W = _acceleration_at_row_times(flight, a_W, settings, notes)
     return _Motion(
         dt=dt,
         p_WB_W=p,
         v_WB_W=np.asarray(motion.velocity, dtype=float),
-        a_W=np.asarray(motion.acceleration, dtype=float),
+        a_W=a_W,
         euler=euler,
         R_WB=euler_to_matrix(np.where(np.isfinite(euler), euler, 0.0)),
         w_WB_B=np.where(np.isfinite(w), w, 0.0),
@@ -603,6 +644,35 @@ def _derive_motion(
         position_measured=position_measured,
         notes=notes,
     )
+
+
+def _acceleration_at_row_times(
+    flight: FlightLog, a_W: FloatArray, settings: FitSettings, notes: list[str]
+) -> FloatArray:
+    """The measured acceleration moved to the time of its row, when the log says it was read earlier.
+
+    The simulator's IMU reads the mean acceleration over its last physics step (``physics_rate_hz`` in
+    the log's metadata, multirotor_ros.simulation.vehicle): the acceleration half a step before the
+    row's attitude, velocity and rotor speeds. Small as it is (1 ms at 500 Hz), a skew between a force
+    and its rate of change biases drag, inflow and lag parameters by several of their standard
+    deviations. Each sample is interpolated half a step towards the next one.
+    """
+    delay_s = 0.5 * _rate_period_s(flight, "physics_rate_hz", 0.0)
+    if delay_s == 0 or flight.t.size < 2:
+        return a_W
+    step = np.diff(flight.t)
+    # Not across a gap, nor from or to an unmeasured sample.
+    joined = (step > 0) & (step <= settings.gap_factor * float(np.median(step)))
+    joined &= np.all(np.isfinite(a_W[1:]) & np.isfinite(a_W[:-1]), axis=1)
+    share = np.divide(delay_s, step, out=np.zeros_like(step), where=joined)[:, None]
+    shifted = a_W.copy()
+    shifted[:-1] = np.where(joined[:, None], a_W[:-1] + share * (a_W[1:] - a_W[:-1]), a_W[:-1])
+    notes.append(
+        f"acceleration: the log's IMU read the mean of its last physics step "
+        f"({flight.metadata['physics_rate_hz']} Hz), moved "
+        f"{1e3 * delay_s:.3g} ms forward to the time of its row"
+    )
+    return shifted
 
 
 @dataclass

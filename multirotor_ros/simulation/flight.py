@@ -2,7 +2,8 @@
 
 ``simulate_flight`` is what ``multirotor simulate`` runs and what the identification and discrepancy
 tests use to make flights with known (hidden) effects. Given the same generator state it gives the same
-log, bit for bit.
+log, bit for bit. ``simulate_noisy_copies`` gives one flight's logs under several generators' sensor noise
+at about the cost of one (each log the one ``simulate_flight`` gives with that generator).
 
 Setpoints are a list of ``(t, x, y, z, yaw)`` [s, m, m, m, rad], world ENU, sorted by t: from each t on
 the vehicle is asked to hold that pose; before the first t it holds its starting pose. On the command
@@ -158,6 +159,7 @@ class FaultTolerance:
     detection: DetectionSettings | None = None
     filter_time_constant_s: float = EffectivenessFilter.DEFAULT_TIME_CONSTANT_S  # [s]
     filter_floor: float = EffectivenessFilter.DEFAULT_FLOOR  # [-]
+    stop_time_constant_s: float = EffectivenessFilter.DEFAULT_STOP_TIME_CONSTANT_S  # [s]
     velocity_noise_m_s: float = 0.02  # [m/s] white noise on the true velocity the diagnosis is given
     seed: int = 0  # of the velocity noise (the simulator's own generator is left as without diagnosis)
     reported: ReportedFault | None = None
@@ -220,7 +222,10 @@ class _InLoopDiagnosis:
             )
         self.diagnoser = RotorDiagnoser(model, 1, settings.observer, settings.detection)
         self.filter = EffectivenessFilter(
-            self.n_rotors, settings.filter_time_constant_s, settings.filter_floor
+            self.n_rotors,
+            settings.filter_time_constant_s,
+            settings.filter_floor,
+            settings.stop_time_constant_s,
         )
         self.rng = np.random.default_rng(settings.seed)
         self.sample_period_s = sample_period_s
@@ -289,6 +294,86 @@ def simulate_flight(
     ``fault_tolerance``: diagnose in the loop and reallocate (module docstring); ``trace``: filled with
     every control step.
     """
+    return _fly(
+        airframe_or_model,
+        effects,
+        setpoints=setpoints,
+        duration_s=duration_s,
+        rngs=[rng],
+        physics_rate_hz=physics_rate_hz,
+        log_rate_hz=log_rate_hz,
+        noise=noise,
+        motor_lag=motor_lag,
+        gains=gains,
+        initial_position_m=initial_position_m,
+        initial_yaw_rad=initial_yaw_rad,
+        fault_tolerance=fault_tolerance,
+        trace=trace,
+    )[0]
+
+
+def simulate_noisy_copies(
+    airframe_or_model: Airframe | Model,
+    effects: Iterable[Effect | Mapping[str, Any]] | None = None,
+    *,
+    setpoints: Iterable[Sequence[float]],
+    duration_s: float,
+    rngs: Sequence[np.random.Generator],
+    physics_rate_hz: float = 1000.0,
+    log_rate_hz: float = 100.0,
+    motor_lag: bool = True,
+    gains: ControllerGains | None = None,
+    initial_position_m: Sequence[float] = (0.0, 0.0, 0.0),
+    initial_yaw_rad: float = 0.0,
+) -> list[FlightLog]:
+    """One flight's logs under the sensor noise of each generator, for little more than one flight's cost.
+
+    Log k is :func:`simulate_flight` with ``rng=rngs[k]``, bit for bit (test/test_std_coverage.py).
+    The controller flies on the true state, which the sensor noise does not touch, so the flights differ
+    only in their readings: they are flown as a fleet of identical vehicles (each lane computed on its
+    own, each drawing from its own generator, VehicleSimulator) given the same commands.
+    """
+    if not rngs:
+        raise ValueError("need at least one generator")
+    return _fly(
+        airframe_or_model,
+        effects,
+        setpoints=setpoints,
+        duration_s=duration_s,
+        rngs=rngs,
+        physics_rate_hz=physics_rate_hz,
+        log_rate_hz=log_rate_hz,
+        noise=True,
+        motor_lag=motor_lag,
+        gains=gains,
+        initial_position_m=initial_position_m,
+        initial_yaw_rad=initial_yaw_rad,
+        fault_tolerance=None,
+        trace=None,
+    )
+
+
+def _fly(
+    airframe_or_model: Airframe | Model,
+    effects: Iterable[Effect | Mapping[str, Any]] | None,
+    *,
+    setpoints: Iterable[Sequence[float]],
+    duration_s: float,
+    rngs: Sequence[np.random.Generator],
+    physics_rate_hz: float,
+    log_rate_hz: float,
+    noise: bool,
+    motor_lag: bool,
+    gains: ControllerGains | None,
+    initial_position_m: Sequence[float],
+    initial_yaw_rad: float,
+    fault_tolerance: FaultTolerance | None,
+    trace: ControlTrace | None,
+) -> list[FlightLog]:
+    """The closed loop of :func:`simulate_flight`, one vehicle per generator, all given vehicle 0's commands.
+
+    The diagnosis in the loop reads vehicle 0's noisy readings: with it, one generator only.
+    """
     if isinstance(airframe_or_model, Model):
         if effects is not None:
             raise ValueError("give either a Model or an Airframe with effects, not both")
@@ -308,10 +393,12 @@ def simulate_flight(
         pose_rate_hz=log_rate_hz,
         rotor_speed_rate_hz=log_rate_hz,
     )
+    if fault_tolerance is not None and len(rngs) != 1:
+        raise ValueError("a flight with the diagnosis in the loop depends on its noise: one generator only")
     sim = VehicleSimulator(
         airframe,
         effects,
-        rng=rng,
+        rng=list(rngs),
         physics_rate_hz=physics_rate_hz,
         odom_rate_hz=gains.rate_hz,
         motor_lag=motor_lag,
@@ -322,7 +409,7 @@ def simulate_flight(
         initial_yaw_rad=initial_yaw_rad,
     )
     controller = SaturationController(airframe, gains, sim.model.gravity_m_s2)
-    recorder = _Recorder(airframe.n_rotors, sim.model.gravity_m_s2)
+    recorders = [_Recorder(airframe.n_rotors, sim.model.gravity_m_s2, k) for k in range(len(rngs))]
     # The diagnosis models what the airframe's YAML says, not the hidden truth.
     diagnosis = (
         None
@@ -334,7 +421,7 @@ def simulate_flight(
     next_control = 0
     while sim.t_ns < end_ns:
         if sim.t_ns >= next_control:
-            x = sim.state
+            x = sim.x[0]
             p_d, yaw_d = schedule.at(sim.t_s)
             effectiveness = None if diagnosis is None else diagnosis.effectiveness(sim.t_s)
             output = controller.update(
@@ -347,7 +434,8 @@ def simulate_flight(
                 yaw_d,
                 effectiveness=effectiveness,
             )
-            sim.set_command(output.omega_cmd_rad_s)
+            for vehicle in range(len(rngs)):
+                sim.set_command(output.omega_cmd_rad_s, vehicle)
             if trace is not None:
                 trace.record(
                     sim.t_s,
@@ -357,7 +445,7 @@ def simulate_flight(
                 )
             next_control += control_ns
         for reading in sim.run_until(min(next_control, end_ns)):
-            recorder.take(reading, sim)
+            recorders[reading.vehicle].take(reading, sim)
             if diagnosis is not None:
                 diagnosis.take(reading, sim, trace)
     metadata = {
@@ -371,15 +459,16 @@ def simulate_flight(
         "controller_rate_hz": f"{gains.rate_hz:g}",
         "noise": "yes" if noise else "no",
     }
-    return recorder.flight_log(metadata)
+    return [recorder.flight_log(metadata) for recorder in recorders]
 
 
 class _Recorder:
-    """Collects the readings of log time stamps into rows."""
+    """Collects one vehicle's readings of log time stamps into rows."""
 
-    def __init__(self, n_rotors: int, gravity_m_s2: float):
+    def __init__(self, n_rotors: int, gravity_m_s2: float, vehicle: int):
         self.n_rotors = n_rotors
         self.gravity_m_s2 = gravity_m_s2
+        self.vehicle = vehicle
         self.rows: dict[int, dict[str, Any]] = {}
 
     def take(self, reading: Any, sim: VehicleSimulator) -> None:
@@ -390,8 +479,9 @@ class _Recorder:
             return
         if reading.kind not in ("imu", "pose", "motor_speeds"):
             return
+        x = sim.x[self.vehicle]
         row = self.rows.setdefault(
-            reading.t_ns, {"v": sim.state[S.VELOCITY].copy(), "cmd": sim.command_rad_s.copy()}
+            reading.t_ns, {"v": x[S.VELOCITY].copy(), "cmd": sim.commands_rad_s[self.vehicle].copy()}
         )
         row[reading.kind] = reading.data
 
