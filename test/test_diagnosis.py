@@ -275,6 +275,49 @@ def test_a_declared_stop_is_not_pulled_back_by_the_observer_ramp_and_clears_on_e
     assert not outputs[-1].alarm[0]
 
 
+def test_a_second_stop_of_another_coaxial_pair_is_kept_beside_the_alarm_but_not_the_partners():
+    # X8 (0-based): rotor 2 stops, then rotor 5 (another pair); rotor 3 is rotor 2's coaxial partner.
+    # All within rotor 2's no-evidence time, so that the synthetic residual moves no estimate.
+    airframe = load_airframe("x8_octorotor")
+    detector, signatures, scale = _learnt_detector(airframe, np.random.default_rng(8))
+    one = np.array([True])
+    detector.declare_stopped(2.0, one, np.array([2]), np.array([0.03]), no_evidence_s=0.45)
+    detector.declare_stopped(2.1, one, np.array([3]), np.array([0.04]), no_evidence_s=0.45)
+    detector.declare_stopped(2.2, one, np.array([5]), np.array([0.05]), no_evidence_s=0.45)
+    rng = np.random.default_rng(9)
+    output = detector.update(2.21, 0.01, (0.01 * scale * rng.standard_normal(4))[None], signatures)
+    assert output.alarm[0] and output.rotor[0] == 2 and output.onset_t[0] == 2.0
+    assert np.flatnonzero(output.also_stopped[0]).tolist() == [5]
+    assert output.effectiveness[0].tolist() == [1, 1, 0, 1, 1, 0, 1, 1]
+    assert output.effectiveness_std[0, 5] == pytest.approx(0.05)
+    reports = rotor_reports(output, 8, coaxial_partners(airframe), 0.5)
+    assert [r.level for r in reports] == ["OK", "OK", "ERROR", "OK", "OK", "ERROR", "OK", "OK"]
+    assert reports[5].message.startswith("rotor 6 stopped or lost its propeller too")
+
+
+def test_an_airframe_without_coaxial_pairs_keeps_no_second_stop():
+    airframe = load_airframe("hexarotor_f550")
+    detector, signatures, scale = _learnt_detector(airframe, np.random.default_rng(8))
+    one = np.array([True])
+    detector.declare_stopped(2.0, one, np.array([0]), np.array([0.03]), no_evidence_s=0.45)
+    detector.declare_stopped(2.1, one, np.array([3]), np.array([0.03]), no_evidence_s=0.45)
+    output = detector.update(2.11, 0.01, (0.01 * scale)[None], signatures)
+    assert output.rotor[0] == 0 and not output.also_stopped.any() and output.effectiveness[0, 3] == 1.0
+
+
+def test_a_stop_beside_a_partial_loss_is_not_kept():
+    # Partial losses stay one per vehicle: only a declared stop takes a second stopped rotor beside it.
+    airframe = load_airframe("x8_octorotor")
+    detector, outputs = _detector_run(airframe, 4, 0.5, 0.01, np.random.default_rng(5))
+    assert outputs[-1].alarm[0] and outputs[-1].rotor[0] == 4
+    detector.declare_stopped(4.0, np.array([True]), np.array([0]), np.array([0.03]), no_evidence_s=0.45)
+    _, scale = stopped_rotor_scales(Model(airframe))
+    omega = np.full(airframe.n_rotors, Model(airframe).hover_speed_rad_s())
+    signatures = _signatures(airframe, omega)
+    output = detector.update(4.01, 0.01, (-0.5 * signatures[0, :, 4])[None], signatures)
+    assert not output.also_stopped.any() and output.effectiveness[0, 0] == 1.0
+
+
 def _learnt_detector(airframe, rng, noise_scale=0.01, steps=200, settings=None):
     """A detector that has learnt residual noise of ``noise_scale`` stopped rotors, and its inputs."""
     omega = np.full(airframe.n_rotors, Model(airframe).hover_speed_rad_s())

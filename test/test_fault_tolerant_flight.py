@@ -152,6 +152,60 @@ def test_rotor_3_stopped_is_named_reallocated_and_the_x8_is_back_near_its_no_fau
 
 
 @pytest.mark.ros
+@pytest.mark.xfail(
+    strict=False,
+    reason="over DDS the hexarotor's peak error after rotor 1 stops was 0.39, 0.43 and 2.56 m in three runs "
+    "(offline, with the same diagnosis and allocation, 0.15 m): the identifier is not in the lockstep, so "
+    "its verdict reaches the controller some control periods later in simulated time, more when the "
+    "machine is busy, and the hexarotor has no margin for that delay",
+)
+def test_the_hexarotor_with_a_rotor_stopped_holds_its_hover_and_says_it_gives_up_yaw(
+    probe: RosProbe, tmp_path: Path
+) -> None:
+    hexarotor = {"airframe": "hexarotor_f550"}
+    diagnostics = probe.subscribe("/ft4/diagnostics", DiagnosticArray)
+    effectiveness = probe.subscribe("/ft4/rotor_effectiveness", Float64MultiArray)
+    vehicle = start_vehicle(probe, tmp_path, "/ft4", {**SIMULATOR, **hexarotor}, hexarotor, sim_time=True)
+    try:
+        with NodeProcess(
+            "identifier", tmp_path / "identifier.log", namespace="/ft4", parameters=hexarotor
+        ) as identifier:
+
+            def healthy_and_sure(message: Float64MultiArray) -> bool:
+                estimate, std = effectiveness_from_message(message, 6)
+                return bool(np.all(estimate == 1.0) and np.all(std < 0.1))
+
+            effectiveness.wait_for(healthy_and_sure, timeout=120.0)
+            # The fast stopped-rotor test learns the residual's noise over the identifier's first seconds
+            # (a fault before that takes the observer's slower path): hover 3 s more first.
+            settled_at = stamp_s(vehicle.latest())
+            assert hover_error(vehicle, settled_at, settled_at + 3.0).max() < 0.01
+            (result,) = probe.set_parameters("/ft4/simulator", {"fault_motor": 1}).values()
+            assert result.successful
+
+            def rotor_1_error(message: DiagnosticArray) -> bool:
+                return any(s.name == "rotor_1" and s.level == DiagnosticStatus.ERROR for s in message.status)
+
+            named = diagnostics.wait_for(rotor_1_error, timeout=60.0)[-1]
+            faulty = next(s for s in named.status if s.name == "rotor_1")
+            detected = float(next(kv.value for kv in faulty.values if kv.key == "detected_at_s"))
+
+            def rotor_1_stopped(message: Float64MultiArray) -> bool:
+                estimate, std = effectiveness_from_message(message, 6)
+                return bool(estimate[0] < 0.1 and std[0] < 0.1 and np.all(estimate[1:] == 1.0))
+
+            effectiveness.wait_for(rotor_1_stopped, timeout=30.0)
+            # From the fault on (the injection comes at most a detection delay before the verdict).
+            error = hover_error(vehicle, detected - 0.5, detected + 6.0)
+            identifier.assert_running()
+        assert error.max() < 0.5, error.max()
+        log = vehicle.controller.log_text()
+        assert "reallocating around rotor 1" in log and "yaw authority given up" in log
+    finally:
+        stop_vehicles(vehicle)
+
+
+@pytest.mark.ros
 def test_a_healthy_rotor_wrongly_reported_at_half_thrust_does_not_destabilise_the_x8(
     probe: RosProbe, tmp_path: Path
 ) -> None:

@@ -33,6 +33,18 @@ it): the alarm names that rotor at effectiveness 0, as sure as the test's estima
 residual is no evidence about it until it has had time to follow the step (``no_evidence_s``): its ramp
 towards the fault would otherwise pull the estimate back to a partial loss.
 
+A second stopped rotor. The alarm names one rotor, but a vehicle of coaxial pairs whose alarm is a
+declared stop may lose another rotor later (an X8 flies on with two rotors of different pairs stopped):
+a stop then declared for a rotor of another coaxial pair is kept beside the alarm
+(``DetectorOutput.also_stopped``, reported at effectiveness 0 with the test's std) until
+:meth:`FaultDetector.reset`. A stopped rotor does not come back by itself, and once the allocation leaves
+it idle no residual tells either way. Not taken: a stop of the alarm's coaxial partner (the two can
+hardly be told apart, and naming both would take a healthy rotor out with the faulty one), nor a second
+stop on an airframe without coaxial pairs. A hexarotor flying on one rotor short (its yaw given up)
+gave the fast test false second stops of healthy rotors in 2 of 20 cases of the fault-tolerance campaign
+(diagnosis/recovery.py, ``recovery_cases(6, 20, 0)``: seeds 3 and 9), which would take a healthy rotor
+out. Partial losses stay one per vehicle (the alarm).
+
 Breaks in the data are not evidence. :meth:`FaultDetector.interrupt` (the caller skipped samples, e.g.
 an observer transient after stepping over missing ones) restarts the persistence and clearing clocks: an
 alarm condition must hold on consecutive evidence. :meth:`FaultDetector.relearn` (after a gap or a
@@ -126,6 +138,7 @@ class DetectorOutput:
     loss_std: FloatArray  # (B, N): their standard deviations
     threshold: FloatArray  # (B, N): the adaptive loss threshold
     onset_t: FloatArray  # (B,) time the current alarm was raised (nan without alarm)
+    also_stopped: BoolArray  # (B, N) stopped rotors declared beside the alarm's (module docstring)
     warming_up: bool = False  # every vehicle is learning the residual noise (first or again): no verdict
 
 
@@ -143,6 +156,9 @@ class _State:
     ambiguous: BoolArray  # (B,) the alarm's coaxial partner fits almost as well (last evidence)
     relearning: BoolArray  # (B,) learning the noise again after a break (module docstring)
     evidence_from_t: FloatArray  # (B,) no sample before this time is evidence (after a declared stop)
+    stop_declared: BoolArray  # (B,) the alarm is a stop declared by the fast test
+    also_stopped: BoolArray  # (B, N) stopped rotors declared beside the alarm's
+    also_stopped_std: FloatArray  # (B, N) the std of their declarations (nan where none)
     relearn_started_t: float | None = None
     started_t: float | None = None
     warmed_up: bool = False
@@ -192,6 +208,9 @@ class FaultDetector:
             ambiguous=np.zeros(b, dtype=bool),
             relearning=np.zeros(b, dtype=bool),
             evidence_from_t=np.full(b, -np.inf),
+            stop_declared=np.zeros(b, dtype=bool),
+            also_stopped=np.zeros((b, n), dtype=bool),
+            also_stopped_std=np.full((b, n), np.nan),
         )
 
     def interrupt(self) -> None:
@@ -240,9 +259,22 @@ class FaultDetector:
 
         The alarm names it at effectiveness 0 (onset ``t`` unless already in alarm on it), and the
         observer's residual is no evidence about it for ``no_evidence_s`` (module docstring). A vehicle in
-        alarm on another rotor keeps that alarm: the detector names one faulty rotor.
+        alarm on another rotor keeps that alarm; the stop is kept beside it when that alarm is a declared
+        stop of another coaxial pair (module docstring: a second stopped rotor).
         """
         state = self._state
+        second = (
+            vehicles
+            & state.alarm
+            & state.stop_declared
+            & (state.rotor != rotor)
+            & (self.partners[rotor] >= 0)
+            & (self.partners[state.rotor] != rotor)
+        )
+        if second.any():
+            rows = np.flatnonzero(second)
+            state.also_stopped[rows, rotor[rows]] = True
+            state.also_stopped_std[rows, rotor[rows]] = std[rows]
         apply = vehicles & (~state.alarm | (state.rotor == rotor))
         if not apply.any():
             return
@@ -257,6 +289,7 @@ class FaultDetector:
         state.pending_since[rows] = np.nan
         state.quiet_since[rows] = np.nan
         state.evidence_from_t[rows] = t + no_evidence_s
+        state.stop_declared[rows] = True
 
     @property
     def warmed_up(self) -> bool:
@@ -354,6 +387,7 @@ class FaultDetector:
             state.onset_t = np.where(cleared, np.nan, state.onset_t)
             state.effectiveness[cleared] = 1.0
             state.quiet_since = np.where(cleared, np.nan, state.quiet_since)
+            state.stop_declared = state.stop_declared & ~cleared
         state.effectiveness[~state.alarm] = 1.0
 
         # Learn noise and bias only while nothing is suspected; a relearning vehicle's noise comes from its
@@ -374,17 +408,19 @@ class FaultDetector:
         effectiveness_std[rows, faulty] = np.where(
             state.alarm, np.sqrt(state.evidence_variance), loss_std[rows, faulty]
         )
+        also = state.also_stopped
         return DetectorOutput(
             t=t,
             alarm=state.alarm.copy(),
             rotor=faulty.copy(),
             partner_ambiguous=state.ambiguous.copy(),
-            effectiveness=state.effectiveness.copy(),
-            effectiveness_std=effectiveness_std,
+            effectiveness=np.where(also, 0.0, state.effectiveness),
+            effectiveness_std=np.where(also, state.also_stopped_std, effectiveness_std),
             loss=loss,
             loss_std=loss_std,
             threshold=threshold,
             onset_t=state.onset_t.copy(),
+            also_stopped=also.copy(),
             warming_up=bool(learning.all()),
         )
 
@@ -473,5 +509,6 @@ class FaultDetector:
             loss_std=np.full((b, n), np.nan),
             threshold=np.full((b, n), np.nan),
             onset_t=np.full(b, np.nan),
+            also_stopped=np.zeros((b, n), dtype=bool),
             warming_up=True,
         )

@@ -228,6 +228,10 @@ def rotor_reports(
             values["detected_at_s"] = f"{onset:.3f}"
             reports.append(RotorReport(f"rotor_{k + 1}", level, effectiveness, message, values, summary))
             continue
+        if output.also_stopped[vehicle, k]:
+            message = f"rotor {k + 1} stopped or lost its propeller too: about 0 % of its thrust left"
+            reports.append(RotorReport(f"rotor_{k + 1}", "ERROR", 0.0, message, values, message))
+            continue
         if faulty >= 0:
             message = f"rotor {k + 1}: no fault of its own (rotor {faulty + 1} is faulty)"
         elif loss > 0.5 * threshold:

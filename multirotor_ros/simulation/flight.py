@@ -24,8 +24,8 @@ from motion capture, body rates from the gyroscope, rotor speeds from the ESCs, 
 white noise (a state estimator), one sample per log row. Its verdict, as the ``rotor_effectiveness``
 topic carries it (:meth:`RotorDiagnoser.effectiveness`), goes through the controller's
 :class:`EffectivenessFilter` to the allocation, as in the controller node. A :class:`ControlTrace`
-records, per control step, the position error and the effectiveness the allocation used, and the
-first detection.
+records, per control step, the position error and the effectiveness the allocation used, the first
+detection, and when each rotor was first named faulty (a vehicle may lose a second rotor: detection.py).
 """
 
 from __future__ import annotations
@@ -181,6 +181,7 @@ class ControlTrace:
         self._yaw_fraction: list[float] = []
         self.detection_t_s = math.nan  # [s] the diagnoser's first alarm (nan: none, or no diagnosis)
         self.detected_motor = 0  # rotor (1..N) named at the first alarm, 0: none
+        self.named_faulty: dict[int, float] = {}  # rotor (1..N) -> when the diagnosis first named it [s]
 
     def record(self, t_s: float, error_W: FloatArray, effectiveness: FloatArray, yaw_fraction: float) -> None:
         """One control step: position error p - p_d [m] (world), effectiveness allocated with."""
@@ -251,9 +252,13 @@ class _InLoopDiagnosis:
             omega=np.asarray(sample["motor_speeds"], dtype=float).reshape(1, self.n_rotors),
         )
         output = self.diagnoser.update(state, self.sample_period_s).detection
-        if trace is not None and output is not None and output.alarm[0] and math.isnan(trace.detection_t_s):
+        if trace is None or output is None or not output.alarm[0]:
+            return
+        if math.isnan(trace.detection_t_s):
             trace.detection_t_s = float(output.t)
             trace.detected_motor = int(output.rotor[0]) + 1
+        for rotor in [int(output.rotor[0]), *np.flatnonzero(output.also_stopped[0]).tolist()]:
+            trace.named_faulty.setdefault(rotor + 1, float(output.t))
 
     def effectiveness(self, t_s: float) -> FloatArray | None:
         """What the allocation uses now (None: allocate as if healthy, reallocation being off)."""

@@ -62,6 +62,7 @@ from multirotor_ros.model.effects import (
     ActuatorFault,
     Effect,
     MotorLag,
+    RotorEffectiveness,
     evaluate,
     formula_arguments,
     make_effect,
@@ -129,6 +130,30 @@ def _per_lane(lanes: Sequence[Sequence[Effect]], n_rotors: int) -> list[Effect]:
         }
         merged.append(type(given)(**columns))
     return merged
+
+
+def _onset_ns(fault: Effect) -> int:
+    """An ``actuator_fault``'s onset on the simulator's clock [ns]."""
+    return round(float(fault["t_fault_s"]) * NS_PER_S)
+
+
+def _fold_started_faults(
+    faults: Sequence[Effect], t_ns: int, base: RotorEffectiveness | None, n_rotors: int
+) -> list[Effect]:
+    """A vehicle's several ``actuator_fault`` entries as effects the model takes (one per id).
+
+    The model takes one ``actuator_fault``: the faults already begun at ``t_ns`` become one
+    ``rotor_effectiveness`` (their thrust factors multiplied, the airframe's own ``rotor_effectiveness``
+    ``base`` included), and the next one to begin stays an ``actuator_fault``, which starts inside the
+    integrator at its onset. The simulator rebuilds its model at every onset (run_until stops there).
+    """
+    started = [f for f in faults if _onset_ns(f) <= t_ns]
+    pending = sorted((f for f in faults if _onset_ns(f) > t_ns), key=_onset_ns)
+    factors = np.array([1.0 if base is None else float(base[f"e_{i + 1}"]) for i in range(n_rotors)])
+    for fault in started:
+        factors[int(fault["motor"]) - 1] *= float(fault["effectiveness"])
+    folded = RotorEffectiveness(**{f"e_{i + 1}": value for i, value in enumerate(factors)})
+    return [folded, *pending[:1]]
 
 
 class Reading(NamedTuple):
@@ -234,12 +259,13 @@ class VehicleSimulator:
         if motor_lag and not self._hidden_lag:
             self.motor_lag_s = airframe.motor_time_constant_s
             given.append(MotorLag(tau_s=airframe.motor_time_constant_s))
-        # Scheduled effects are kept apart, per vehicle: inject_fault replaces one vehicle's.
+        # Scheduled effects are kept apart, per vehicle: inject_fault replaces one vehicle's. Several
+        # actuator_fault entries (rotors failing one after another) are flown by _fold_started_faults.
         self._base_effects = [e for e in given if not _is_scheduled(e)]
         self._faults = [[e for e in given if _is_scheduled(e)] for _ in range(self.vehicles)]
+        self.t_ns = 0
         self._rebuild_model()
 
-        self.t_ns = 0
         n = airframe.n_rotors
         airborne = positions[:, 2] > ground_height_m
         self.hover_speed_rad_s = self.model.hover_speed_rad_s()
@@ -293,9 +319,35 @@ class VehicleSimulator:
 
     # ------------------------------------------------------------------ model
 
+    def _several_faults(self, k: int) -> bool:
+        """Whether vehicle k has more than one ``actuator_fault`` (flown through _fold_started_faults)."""
+        return sum(e.id == ActuatorFault.id for e in self._faults[k]) > 1
+
     def _rebuild_model(self) -> None:
-        effects = self._base_effects + _per_lane(self._faults, self.airframe.n_rotors)
-        self.model = Model(self.airframe, effects)
+        n = self.airframe.n_rotors
+        base = self._base_effects
+        lanes = self._faults
+        folding = [k for k in range(self.vehicles) if self._several_faults(k)]
+        if folding:
+            # The airframe's own rotor_effectiveness goes into every lane's (one entry per id).
+            own = next((e for e in base if isinstance(e, RotorEffectiveness)), None)
+            base = [e for e in base if e is not own]
+            lanes = [
+                [e for e in lane if e.id != ActuatorFault.id]
+                + _fold_started_faults([e for e in lane if e.id == ActuatorFault.id], self.t_ns, own, n)
+                if k in folding
+                else lane + ([] if own is None else [own])
+                for k, lane in enumerate(lanes)
+            ]
+        # The next onset at which a vehicle with several faults needs its model rebuilt (None: none).
+        onsets = [
+            _onset_ns(e)
+            for k in folding
+            for e in self._faults[k]
+            if e.id == ActuatorFault.id and _onset_ns(e) > self.t_ns
+        ]
+        self._next_rebuild_ns = min(onsets, default=None)
+        self.model = Model(self.airframe, base + _per_lane(lanes, n))
         self.integrator = Integrator(self.model, self.dt_ns / NS_PER_S, ground_height_m=self.ground_height_m)
 
     @property
@@ -423,7 +475,11 @@ class VehicleSimulator:
         readings: list[Reading] = []
         self._sample_due(readings)  # readings due now (at t = 0: the first of each kind)
         while self.t_ns < t_ns:
+            if self._next_rebuild_ns is not None and self.t_ns >= self._next_rebuild_ns:
+                self._rebuild_model()
             target = min([t_ns, *(s.next_ns for s in self._schedules.values() if s.next_ns > self.t_ns)])
+            if self._next_rebuild_ns is not None:
+                target = min(target, self._next_rebuild_ns)
             deadline = self._watchdog_deadline()
             if deadline is not None and self.t_ns < deadline < target:
                 target = deadline
