@@ -231,6 +231,9 @@ def test_with_the_parameter_off_a_diagnosis_changes_nothing_and_reallocation_com
         probe, tmp_path, "/ft3", SIMULATOR, {"fault_tolerant_allocation": False}, sim_time=True
     )
     try:
+        # The probe's subscription must be matched before the windows below: in lockstep the loop runs
+        # seconds of simulated time in a second, and a window flown before discovery would be empty.
+        commands.wait_for(timeout=120.0)
         start = stamp_s(vehicle.latest())
         publish_diagnosis(probe, "/ft3", one_rotor_at(3, 0.0), std=0.01)
 
