@@ -271,8 +271,10 @@ def test_reset_puts_the_vehicle_back_and_tells_the_vehicle(vehicle: dict) -> Non
 
     recorders["odom"].wait_for(later, timeout=STARTUP_TIMEOUT_S)
     odometry = recorders["odom"].messages
-    at_reset = [m for m in odometry if stamp_to_ns(m.header.stamp) == reset_ns]
-    assert any(abs(m.pose.pose.position.z) < 1e-6 and abs(m.pose.pose.position.x) < 1e-6 for m in at_reset)
+    # The reset's own message may be dropped by the recorder's queue in a burst (seen once in CI): the
+    # vehicle is found at its initial pose within 20 ms after it, before it could have moved 3 mm.
+    soon = [m for m in odometry if reset_ns <= stamp_to_ns(m.header.stamp) <= reset_ns + 20_000_000]
+    assert any(abs(m.pose.pose.position.z) < 3e-3 and abs(m.pose.pose.position.x) < 3e-3 for m in soon)
     after = [m for m in odometry if stamp_to_ns(m.header.stamp) > reset_ns]
     # The controller started over too (simulation_reset): it holds where the vehicle now stands.
     assert max(m.pose.pose.position.z for m in after) < 0.05, "stays on the ground where it started"
