@@ -249,7 +249,9 @@ def hold_after_reset(vehicle: Vehicle, reset) -> None:
     """Fly towards x = 3 m with a climb to 2 m scheduled; ``reset()`` on the way: the vehicle stops there."""
     vehicle.settle_at(0.0, 0.0, 1.0)
     scheduled = setpoint_message(0.0, 0.0, 2.0)
-    scheduled.header.stamp = stamp_from_ns(round((stamp_s(vehicle.latest()) + 2.0) * 1e9))
+    # 4 s ahead: still waiting at the reset when the lockstep loop runs on during the service call (2 s
+    # ahead was once flown before the call came through), and inside the 6 s looked at after it.
+    scheduled.header.stamp = stamp_from_ns(round((stamp_s(vehicle.latest()) + 4.0) * 1e9))
     vehicle.setpoints.publish(scheduled)
     sent = vehicle.fly_to(3.0, 0.0, 1.0)
     vehicle.until(sent + 0.5)

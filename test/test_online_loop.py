@@ -11,6 +11,7 @@ process on every core. The pure rules of lockstep are tested here too.
 from __future__ import annotations
 
 import math
+import re
 import signal
 import time
 from collections.abc import Iterator
@@ -23,6 +24,7 @@ from rclpy.qos import qos_profile_sensor_data
 from ros_harness import CpuHog, NodeProcess, Recorder, RosProbe
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
 
 from multirotor_ros.control.setpoint_queue import SetpointQueue
@@ -57,6 +59,26 @@ def test_lockstep_runs_one_period_past_the_newest_command_and_then_waits() -> No
     lockstep.command(12 * MS)
     lockstep.reached(16 * MS, wall_s=20.1)  # the next wait starts when the physics gets to the new limit
     assert lockstep.waiting_s(20.5) == pytest.approx(0.4)
+
+
+def test_lockstep_waits_for_a_follower_once_heard_and_lets_a_silent_one_go() -> None:
+    lockstep = Lockstep(period_ns=4 * MS, follower_slack_ns=10 * MS, release_s=1.0)
+    lockstep.command(40 * MS)
+    assert lockstep.limit_ns() == 44 * MS  # a follower not heard yet holds nothing
+    assert lockstep.follower("identifier", 20 * MS, wall_s=0.0)  # joins
+    assert lockstep.limit_ns() == 30 * MS  # at most the slowest state topic's period past its word
+    assert not lockstep.follower("identifier", 12 * MS, wall_s=0.1)  # an older word never moves it back
+    lockstep.follower("identifier", 36 * MS, wall_s=0.2)
+    assert lockstep.limit_ns() == 44 * MS  # the controller's command holds it again
+    lockstep.reached(44 * MS, wall_s=0.3)
+    lockstep.command(60 * MS)
+    lockstep.reached(46 * MS, wall_s=5.0)  # the follower holds it at 46 ms from wall time 5 s ...
+    assert lockstep.release_silent(wall_s=5.9) == []  # ... silent since then, not since its last word
+    assert not lockstep.waiting_for_commands()  # a stall warning would blame the controller wrongly
+    assert lockstep.release_silent(wall_s=6.0) == [("identifier", 36 * MS)]
+    assert lockstep.limit_ns() == 64 * MS  # the flight goes on without it
+    assert lockstep.follower("identifier", 50 * MS, wall_s=7.0)  # heard again: it joins again
+    assert lockstep.limit_ns() == 60 * MS
 
 
 def test_a_period_is_late_when_its_command_comes_after_it_ended() -> None:
@@ -298,6 +320,55 @@ def test_a_lockstep_simulator_waits_for_a_stalled_controller_and_says_which_inpu
         controller.process.send_signal(signal.SIGCONT)
         controller.stop()
         simulator.stop()
+
+
+@pytest.mark.ros
+def test_a_lockstep_simulator_keeps_the_identifier_in_step_and_lets_a_stopped_one_go(
+    probe: RosProbe, tmp_path
+) -> None:
+    """The identifier's ``~/progress`` holds simulated time: its verdicts come at the same simulated time.
+
+    Stopped, it is let go after a second of wall time, and it joins again when it is back.
+    """
+    namespace = "/follow"
+    progress_topic = f"{namespace}/identifier/progress"
+    progress = probe.subscribe(progress_topic, Header, qos=1000)
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
+    lockstep = {"real_time_factor": 0.0, "publish_clock": True, "initial_z": 1.0}
+    with (
+        NodeProcess("simulator", tmp_path / "simulator.log", namespace=namespace, parameters=lockstep) as sim,
+        NodeProcess(
+            "controller", tmp_path / "controller.log", namespace=namespace, parameters={"use_sim_time": True}
+        ),
+        NodeProcess(
+            "identifier", tmp_path / "identifier.log", namespace=namespace, parameters={"use_sim_time": True}
+        ) as identifier,
+    ):
+        joined = f"lockstep: simulated time also waits for {progress_topic}"
+        sim.wait_for_log(joined, STARTUP_TIMEOUT_S)
+        odom.wait_for(lambda m: stamp_s(m) >= 3.0, timeout=STARTUP_TIMEOUT_S)
+        # A follower that joins late catches up first: in step once its word reaches the state it was sent.
+        in_step_at = newest_stamp_s(odom)
+        progress.wait_for(lambda m: stamp_to_ns(m.stamp) * 1e-9 >= in_step_at, timeout=60.0)
+        identifier.process.send_signal(signal.SIGSTOP)
+        try:
+            log = sim.wait_for_log("silent for 1 s of wall time", 30.0)
+            stood_at, last_word = map(
+                float,
+                re.findall(r"silent for 1 s of wall time at t = (\S+) s \(its last word: (\S+) s\)", log)[0],
+            )
+            # It stood at most one motor_speeds period (10 ms) past the identifier's last word, which came
+            # from the identifier (the probe may miss some: the publisher keeps 10 for a slow reader).
+            assert last_word <= stood_at <= last_word + 0.010 + 1e-9, (last_word, stood_at)
+            assert any(abs(stamp_to_ns(m.stamp) * 1e-9 - last_word) < 1e-6 for m in progress.messages)
+            odom.wait_for(lambda m: stamp_s(m) >= stood_at + 1.0, timeout=60.0)  # and flies on without it
+        finally:
+            identifier.process.send_signal(signal.SIGCONT)
+        wait_until = time.monotonic() + 60.0
+        while sim.log_text().count(joined) < 2 and time.monotonic() < wait_until:
+            time.sleep(0.2)
+        assert sim.log_text().count(joined) == 2, sim.log_text()
+        identifier.assert_running()
 
 
 @pytest.mark.ros

@@ -80,6 +80,25 @@ def test_the_simulator_stops_each_of_two_rotors_at_its_own_onset() -> None:
     assert sim.injected_effectiveness().tolist() == [1, 1, 0, 1, 1, 0, 1, 1]
 
 
+def test_faults_injected_one_after_another_keep_their_onsets() -> None:
+    # As the simulator node's ``faults`` parameter sets them: the first alone, later both.
+    airframe = load_airframe("x8_octorotor")
+    sim = VehicleSimulator(airframe, rng=np.random.default_rng(0), noise=False, initial_position_m=(0, 0, 2))
+    sim.run_until(round(0.1 * NS_PER_S))
+    sim.inject_faults([(3, 0.0)])
+    sim.run_until(round(0.3 * NS_PER_S))
+    sim.inject_faults([(3, 0.0), (6, 0.5)])
+    onsets = {int(f["motor"]): float(f["t_fault_s"]) for f in sim._faults[0]}
+    assert onsets == pytest.approx({3: 0.1, 6: 0.3})
+    assert sim.injected_effectiveness().tolist() == [1, 1, 0, 1, 1, 0.5, 1, 1]
+    sim.inject_faults([(6, 0.5)])  # rotor 3 repaired, rotor 6 as it was
+    assert float(sim._faults[0][0]["t_fault_s"]) == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="one fault per motor"):
+        sim.inject_faults([(6, 0.5), (6, 0.0)])
+    with pytest.raises(ValueError, match="fault motor must be 1..8"):
+        sim.inject_faults([(9, 0.0)])
+
+
 def test_x8_with_two_rotors_of_different_pairs_stopped_holds_its_hover() -> None:
     # Rotor 3 (pair 2) stops at 3 s, rotor 6 (pair 3) at 5 s: the second stop is kept beside the alarm.
     case = HoverCase("x8_octorotor", (3, 6), duration_s=DURATION_S, stop_interval_s=2.0)

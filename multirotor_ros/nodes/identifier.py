@@ -51,6 +51,11 @@ new time line (FlightMonitor.restart) and says so. An exception in a callback or
 input) is logged once per kind with a count and the node goes on. Detection thresholds are parameters
 ``detection.*`` that ``ros2 param set`` may change.
 
+``~/progress`` (std_msgs/Header): after each input message, the stamp up to which every input has been
+handled (the oldest of the inputs' newest stamps; a state sample waiting for its rotor speeds is not
+handled yet), when it moves on. A lockstep simulator waits for it (its ``lockstep_followers``), so that
+the verdict on the state of t reaches the controller at the same simulated time in every run.
+
 A stalled peer is named (diagnosis/inputs.py): when an input (``motor_speeds``, ``odom``, or ``pose``
 and ``imu``) brings nothing for ``input_timeout_s`` of the node's clock or of wall time, a warning
 says which, and whether the others still come (once per episode; a line when it is back), and
@@ -323,10 +328,13 @@ class IdentifierNode(Node):
         self._alarmed_rotor: int | None = None  # 0-based, as last logged
         self._reset_fence = ResetFence(p["future_stamp_tolerance_s"])
         inputs = ["motor_speeds", *(["odom"] if p["input"] == "odom" else ["pose", "imu"])]
+        self._input_topics = inputs
         self._inputs = InputWatch(inputs, p["input_timeout_s"])
         self._clock_ns: int | None = None  # the node's clock at the last message, to see it go back
         self._used: dict[str, Any] = {}  # per topic, the last message used: the same again is a resend
         self._state_frame = ""  # frame_id of the state messages used (odom or pose), for simulation_reset
+        self._newest_input_ns: dict[str, int] = {}  # per input topic, the newest stamp taken in (~/progress)
+        self._progress_ns = -1
 
         self._residuals_pub = self.create_publisher(Vector3Stamped, "residuals", 10)
         self._parameters_pub = self.create_publisher(DiagnosticArray, "identified_parameters", 10)
@@ -340,11 +348,10 @@ class IdentifierNode(Node):
         self._aggregated_prefix = self.get_fully_qualified_name().lstrip("/") + ": "
         self._vehicle = self.get_namespace().strip("/") or self.airframe.name
         self._effectiveness_pub = self.create_publisher(Float64MultiArray, "rotor_effectiveness", 10)
-        self.create_subscription(
-            JointState, "motor_speeds", self._guarded(self._on_motor_speeds), QUEUE_DEPTH
-        )
+        self._progress_pub = self.create_publisher(Header, "~/progress", 10)
+        self.create_subscription(JointState, "motor_speeds", self._input(self._on_motor_speeds), QUEUE_DEPTH)
         if p["input"] == "odom":
-            self.create_subscription(Odometry, "odom", self._guarded(self._on_odometry), QUEUE_DEPTH)
+            self.create_subscription(Odometry, "odom", self._input(self._on_odometry), QUEUE_DEPTH)
         else:
             self._fusion = self._new_fusion()
             # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
@@ -353,8 +360,8 @@ class IdentifierNode(Node):
                 reliability=ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.VOLATILE,
             )
-            self.create_subscription(PoseStamped, "pose", self._guarded(self._on_pose), sensor_qos)
-            self.create_subscription(Imu, "imu", self._guarded(self._on_imu), sensor_qos)
+            self.create_subscription(PoseStamped, "pose", self._input(self._on_pose), sensor_qos)
+            self.create_subscription(Imu, "imu", self._input(self._on_imu), sensor_qos)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         wall = steady_clock()
@@ -447,6 +454,21 @@ class IdentifierNode(Node):
 
         return run
 
+    def _input(self, handle: Callable[[Any], None]) -> Callable[[Any], None]:
+        """An input topic's callback: ``handle`` (guarded), then the progress it made (module docstring)."""
+        guarded = self._guarded(handle)
+
+        def run(message: Any) -> None:
+            guarded(message)
+            if len(self._newest_input_ns) < len(self._input_topics):
+                return
+            handled_ns = min(self._newest_input_ns.values())
+            if handled_ns > self._progress_ns:
+                self._progress_ns = handled_ns
+                self._progress_pub.publish(Header(stamp=stamp_from_ns(handled_ns)))
+
+        return run
+
     def _new_fusion(self) -> PoseImuFusion:
         return PoseImuFusion(
             self.monitor.diagnoser.model.gravity_m_s2,
@@ -473,10 +495,15 @@ class IdentifierNode(Node):
         if self._used.get(topic) == message:
             self._inputs.resent(topic)
             return False
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        # The simulator sends a state before the clock of its time: a stamp up to the tolerance ahead of
+        # this node's clock is handled as it is; one further ahead is refused below, and counts as no later.
+        taken_ns = min(stamp_ns, now_ns + round(self._params["future_stamp_tolerance_s"] * 1e9))
+        self._newest_input_ns[topic] = max(taken_ns, self._newest_input_ns.get(topic, taken_ns))
         back = self._inputs.heard(topic, now_ns, time.monotonic_ns())
         if back is not None:
             self.get_logger().info(back)
-        return not self._reset_fence.stale(stamp_to_ns(message.header.stamp), now_ns)
+        return not self._reset_fence.stale(stamp_ns, now_ns)
 
     def _refusal(self, topic: str, parsed: object, stamp: Any) -> Refusal | None:
         """Why a new message of ``topic`` is refused (the parser's reason, or its stamp's), or None."""
@@ -494,6 +521,8 @@ class IdentifierNode(Node):
         self.get_logger().debug("observer restarted, residual noise learnt again before any alarm")
         self.monitor.restart()
         self._used.clear()
+        self._newest_input_ns.clear()
+        self._progress_ns = -1
         if self._params["input"] == "pose_imu":
             self._fusion = self._new_fusion()
 

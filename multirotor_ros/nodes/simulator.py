@@ -6,7 +6,7 @@ Wiring::
                                                 (simulation/)   -> imu (Imu), pose (PoseStamped),
                                                                    range (Range), motor_speeds (JointState)
                                                                 -> clock (with every odom, if publish_clock)
-    fault_motor, fault_effectiveness (parameters) ---------------> injected_faults (DiagnosticArray)
+    fault_motor, fault_effectiveness, faults (parameters) -------> injected_faults (DiagnosticArray)
                                                                 -> /tf (odom -> base_link, with every odom),
                                                                    /tf_static (base_link -> rotor_k)
     ~/reset (std_srvs/Trigger) --> vehicles to their initial state -> simulation_reset (Header)
@@ -43,6 +43,14 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   warns (every ``STALL_REPEAT_S``) when a controller that was commanding has been silent for
   ``STALL_WARNING_S`` of wall time, naming the input and its publishers. ``control_period_s`` 0 runs as
   fast as possible without waiting for anyone.
+  Followers: nodes named in ``lockstep_followers`` (topics of std_msgs/Header under each vehicle's
+  namespace; by default the identifier's ``identifier/progress``) say up to which stamp they have handled
+  their inputs, and simulated time also waits for them: at most the period of the slowest state topic
+  (odom, imu, pose, motor_speeds) past the slowest one's word. So an identifier's verdict on the state of
+  t reaches the controller within that period of simulated time in every run, however busy the host
+  (a hexarotor losing a rotor has no margin for a verdict that comes late). A follower counts from the
+  first word heard; one silent for ``FOLLOWER_RELEASE_S`` of wall time while simulated time waits for it
+  is let go with a warning, and joins again when heard: a stopped identifier does not stop the flight.
 - ``real_time_factor`` r > 0: r x wall time. A control period is late when the command computed for it
   (stamped at its start) is not in force before the physics passes its end; the achieved real-time factor
   and late periods are published every second on ``pacing`` and a throttled warning says when the host
@@ -76,13 +84,14 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
+from functools import partial
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
@@ -105,6 +114,7 @@ from multirotor_ros.nodes.messages import (
     rotor_speeds_from_joint_state,
     simulated_imu_message,
     stamp_from_ns,
+    stamp_to_ns,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.reset import RESET_SERVICE, SIMULATION_RESET_QOS, SIMULATION_RESET_TOPIC
@@ -143,6 +153,8 @@ LONE_CHECK_S = 4.0
 RESEND_PERIOD_S = 0.25
 STALL_WARNING_S = 2.0
 STALL_REPEAT_S = 10.0
+# Wall time a silent lockstep follower is waited for before the flight goes on without it.
+FOLLOWER_RELEASE_S = 1.0
 # The pacing status goes out this often (wall time); in real time a second in which the achieved factor is
 # below SLOW_FACTOR_SHARE of the target or more than LATE_PERIOD_SHARE of the control periods were late
 # raises a warning, repeated at most every SLOW_WARNING_REPEAT_S.
@@ -163,7 +175,7 @@ def simulator_parameters(
     """The simulator's own parameters (the ``sensors.*`` ones come from the airframe's YAML).
 
     Fault injection is per vehicle: ``fault_motor`` of the one unnamed vehicle, ``NAME.fault_motor`` of a
-    vehicle of the ``vehicles`` list (and the same for ``fault_effectiveness``).
+    vehicle of the ``vehicles`` list (and the same for ``fault_effectiveness`` and ``faults``).
     """
     return [
         NodeParameter(
@@ -191,6 +203,13 @@ def simulator_parameters(
             "s",
             0.0,
             1.0,
+            read_only=True,
+        ),
+        NodeParameter(
+            "lockstep_followers",
+            "identifier/progress",
+            "in lockstep, also wait for these nodes' progress (std_msgs/Header topics under each vehicle's "
+            "namespace, comma-separated; '' = none): a follower counts once heard",
             read_only=True,
         ),
         NodeParameter(
@@ -255,7 +274,7 @@ def simulator_parameters(
 
 
 def fault_parameters(vehicle: VehicleSpec, n_rotors: int) -> list[NodeParameter]:
-    """``[NAME.]fault_motor`` and ``[NAME.]fault_effectiveness`` of one vehicle."""
+    """``[NAME.]fault_motor``, ``[NAME.]fault_effectiveness`` and ``[NAME.]faults`` of one vehicle."""
     prefix = f"{vehicle.name}." if vehicle.name else ""
     return [
         NodeParameter(
@@ -274,7 +293,37 @@ def fault_parameters(vehicle: VehicleSpec, n_rotors: int) -> list[NodeParameter]
             0.0,
             1.0,
         ),
+        NodeParameter(
+            prefix + "faults",
+            "",
+            "several rotor faults, 'MOTOR:EFFECTIVENESS' comma-separated (e.g. '3:0, 6:0.5'): those already "
+            "in force keep their onset, the others begin now ('' = none); replaces fault_motor's, and "
+            "fault_motor replaces these",
+        ),
     ]
+
+
+def parse_faults(text: str, n_rotors: int) -> list[tuple[int, float]]:
+    """The (motor, effectiveness) pairs of a ``faults`` parameter; ValueError naming the bad entry."""
+    faults = []
+    for entry in (e.strip() for e in text.split(",")):
+        if not entry:
+            continue
+        motor_text, colon, effectiveness_text = entry.partition(":")
+        try:
+            motor, effectiveness = int(motor_text), float(effectiveness_text)
+        except ValueError:
+            motor, effectiveness = 0, math.nan
+        if not colon or not 1 <= motor <= n_rotors or not 0.0 <= effectiveness <= 1.0:
+            raise ValueError(
+                f"faults: {entry[:40]!r} is not MOTOR:EFFECTIVENESS with MOTOR in 1..{n_rotors} and "
+                "EFFECTIVENESS in [0, 1]"
+            )
+        faults.append((motor, effectiveness))
+    motors = [motor for motor, _ in faults]
+    if len(set(motors)) != len(motors):
+        raise ValueError(f"faults: one fault per motor, got motors {motors}")
+    return faults
 
 
 def sensor_parameters(config: SensorConfig) -> list[NodeParameter]:
@@ -309,9 +358,9 @@ class _VehicleTopics:
         self.spec = spec
         prefix = spec.prefix
         self.frames = (frame_prefix + prefix + "odom", frame_prefix + prefix + "base_link")
-        self.fault_parameters = (
-            (f"{spec.name}." if spec.name else "") + "fault_motor",
-            (f"{spec.name}." if spec.name else "") + "fault_effectiveness",
+        self.fault_parameters = tuple(
+            (f"{spec.name}." if spec.name else "") + name
+            for name in ("fault_motor", "fault_effectiveness", "faults")
         )
         publish_period_s = node.publish_period_ns / NS_PER_S
         self.command_gate = StampGate(future_tolerance_s=publish_period_s) if clock_on else StampGate()
@@ -332,6 +381,12 @@ class _VehicleTopics:
         self.commands = node.create_subscription(
             JointState, prefix + "motor_speed_cmd", lambda message: node.on_command(self, message), 10
         )
+        self.followers = [
+            node.create_subscription(
+                Header, prefix + topic, partial(node.on_follower, node.resolve_topic_name(prefix + topic)), 10
+            )
+            for topic in node.follower_topics
+        ]
 
 
 class SimulatorNode(Node):
@@ -390,18 +445,26 @@ class SimulatorNode(Node):
         )
         self._params = p
         self._names = rotor_names(n)
+        self.follower_topics = [t.strip() for t in p["lockstep_followers"].split(",") if t.strip()]
         self._speed_limit = OVERSIZED_SPEED_FACTOR * self.airframe.rotor_speed_max_rad_s
         self.publish_period_ns = period_ns(p["publish_rate_hz"])
         self.vehicles = [
             _VehicleTopics(self, k, spec, p["frame_prefix"], clock_on) for k, spec in enumerate(vehicles)
         ]
         for vehicle in self.vehicles:
-            motor_name, effectiveness_name = vehicle.fault_parameters
+            motor_name, effectiveness_name, faults_name = vehicle.fault_parameters
+            if p[motor_name] and p[faults_name].strip():
+                raise ValueError(f"set {motor_name} or {faults_name}, not both")
             if p[motor_name]:
                 self.sim.inject_fault(p[motor_name], p[effectiveness_name], vehicle=vehicle.index)
+            elif p[faults_name].strip():
+                self.sim.inject_faults(parse_faults(p[faults_name], n), vehicle=vehicle.index)
         control_period_ns = round(p["control_period_s"] * NS_PER_S)
+        # A follower's next input comes within the period of the slowest state topic.
+        state_rates = (sensors.imu_rate_hz, sensors.pose_rate_hz, sensors.rotor_speed_rate_hz)
+        slowest_state_ns = max(self.publish_period_ns, *(period_ns(rate) for rate in state_rates))
         self._lockstep = (
-            Lockstep(control_period_ns, len(vehicles))
+            Lockstep(control_period_ns, len(vehicles), slowest_state_ns, FOLLOWER_RELEASE_S)
             if rate == 0 and clock_on and control_period_ns
             else None
         )
@@ -427,7 +490,7 @@ class SimulatorNode(Node):
         )
         self.create_service(Trigger, RESET_SERVICE, self._on_reset)
         self._pacing_pub = self.create_publisher(DiagnosticArray, "pacing", 10)
-        self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
+        self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         wall = steady_clock()
@@ -558,19 +621,33 @@ class SimulatorNode(Node):
             self._lockstep.command(stamp_ns, vehicle.index)
             self._run_to(self._lockstep.limit_ns())
 
+    def _check_parameters(self, parameters: list[Any]) -> SetParametersResult:
+        result = check_parameters(self._specs, parameters)
+        for parameter in parameters:
+            if result.successful and parameter.name.endswith("faults") and parameter.name in self._specs:
+                try:
+                    parse_faults(parameter.value, self.airframe.n_rotors)
+                except ValueError as error:
+                    result.successful, result.reason = False, str(error)
+        return result
+
     def _apply_parameters(self, parameters: list[Any]) -> None:
         changed = {p.name: p.value for p in parameters}
         self._params.update(changed)
         for vehicle in self.vehicles:
-            motor_name, effectiveness_name = vehicle.fault_parameters
-            if motor_name not in changed and effectiveness_name not in changed:
+            motor_name, effectiveness_name, faults_name = vehicle.fault_parameters
+            if faults_name in changed:
+                faults = parse_faults(self._params[faults_name], self.airframe.n_rotors)
+            elif motor_name in changed or effectiveness_name in changed:
+                motor = self._params[motor_name]
+                faults = [(motor, float(self._params[effectiveness_name]))] if motor else []
+            else:
                 continue
-            motor, effectiveness = self._params[motor_name], float(self._params[effectiveness_name])
-            self.sim.inject_fault(motor, effectiveness, vehicle=vehicle.index)
+            self.sim.inject_faults(faults, vehicle=vehicle.index)
             self.get_logger().warning(
-                f"fault injected at t = {self.sim.t_s:.3f} s: {vehicle.spec.prefix}rotor {motor} "
-                f"effectiveness {effectiveness:g}"
-                if motor
+                f"fault injected at t = {self.sim.t_s:.3f} s: "
+                + ", ".join(f"{vehicle.spec.prefix}rotor {m} effectiveness {e:g}" for m, e in faults)
+                if faults
                 else f"{vehicle.spec.prefix}fault cleared"
             )
             self._publish_faults()
@@ -596,6 +673,16 @@ class SimulatorNode(Node):
         return response
 
     # ------------------------------------------------------------------ time
+
+    def on_follower(self, topic: str, message: Header) -> None:
+        """A lockstep follower's progress: it has handled its inputs up to the stamp (module docstring)."""
+        if self._lockstep is None or not self._started:
+            return
+        # No follower has handled what is not published yet: a stamp ahead is taken as now.
+        handled_ns = min(stamp_to_ns(message.stamp), self.sim.t_ns)
+        if self._lockstep.follower(topic, handled_ns, time.monotonic()):
+            self.get_logger().info(f"lockstep: simulated time also waits for {topic} (a follower)")
+        self._run_to(self._lockstep.limit_ns())
 
     def _now_ns(self) -> int:
         """This node's clock: the simulated time it publishes, or else its ROS clock."""
@@ -635,6 +722,12 @@ class SimulatorNode(Node):
         assert self._lockstep is not None
         now_s = time.monotonic()
         waited_s = self._lockstep.waiting_s(now_s)
+        for topic, last_word_ns in self._lockstep.release_silent(now_s):
+            self.get_logger().warning(
+                f"lockstep: {topic} silent for {FOLLOWER_RELEASE_S:g} s of wall time at t = "
+                f"{self.sim.t_s:.3f} s (its last word: {last_word_ns / NS_PER_S:.3f} s): simulated time goes "
+                "on without that follower until it is heard again"
+            )
         if self._stall is not None and self._stall.at_ns != self.sim.t_ns:
             self.get_logger().info(
                 f"lockstep resumed at t = {self._stall.at_ns / NS_PER_S:.3f} s: motor_speed_cmd is back"
@@ -643,7 +736,7 @@ class SimulatorNode(Node):
         if waited_s > RESEND_PERIOD_S and now_s - self._last_resend_s > RESEND_PERIOD_S:
             self._last_resend_s = now_s
             self._resend_state()
-        if waited_s < STALL_WARNING_S:
+        if waited_s < STALL_WARNING_S or not self._lockstep.waiting_for_commands():
             return
         if self._lockstep.commands == 0:
             self.get_logger().info(

@@ -8,6 +8,12 @@
   command computed for it, however slow the machine, the simulator or the controller: the same commands
   give the same flight. There is no wall-time escape: a controller that stops stops simulated time, and
   the simulator says so (:meth:`Lockstep.waiting_s`) instead of flying on with a stale command.
+  Followers (an identifier whose verdict a controller allocates from) may join: each says up to which
+  stamp it has handled its inputs, and simulated time also runs at most ``follower_slack`` past the
+  slowest follower's word, so that what it concludes from the state of t reaches the controllers at the
+  same simulated time in every run. A follower counts from the first word heard; one silent for
+  ``release_s`` of wall time while simulated time waits for it is released (the simulator says so) and
+  joins again when heard: a stopped identifier must not stop the flight.
 - :class:`ControlTiming`: in real time, whether each control period got its command in time (the command
   for the period starting at t, stamped t, is in force before the physics passes t + one period), and the
   achieved real-time factor: what the simulator reports on its ``pacing`` topic.
@@ -19,6 +25,8 @@
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 NS_PER_S = 1_000_000_000
 
@@ -51,25 +59,70 @@ class RealTimePacer:
         return wanted
 
 
+@dataclass
+class _Follower:
+    """A node that lockstep waits for besides the controllers: its word and when it was last heard."""
+
+    handled_ns: int  # it has handled every input stamped up to this
+    heard_wall_s: float
+    released: bool = False
+
+
 class Lockstep:
     """Lockstep rule at real_time_factor 0 (see the module docstring), for one or several vehicles.
 
     ``period_ns``: the controllers' period; the physics may run that far past the newest command's stamp
     (so up to the next tick of a controller whose first tick is one period after 0). With several
     vehicles in one simulator it is the newest command of the vehicle whose controller is furthest behind:
-    one time for all.
+    one time for all. ``follower_slack_ns``: how far past a follower's word the physics may run; at least
+    the period of the slowest state topic a follower waits for (its next input must get published, or it
+    could never say more). ``release_s``: wall time after which a silent follower is no longer waited for.
     """
 
-    def __init__(self, period_ns: int, vehicles: int = 1):
+    def __init__(self, period_ns: int, vehicles: int = 1, follower_slack_ns: int = 0, release_s: float = 1.0):
         self.period_ns = period_ns
         self.newest_command_ns = [0] * vehicles  # stamp of each vehicle's newest command; they start at 0
         self.commands = 0
+        self.follower_slack_ns = max(follower_slack_ns, period_ns)
+        self.release_s = release_s
+        self._followers: dict[str, _Follower] = {}
         # (simulated time, wall time) of the start of the current wait at the limit, None while it runs.
         self._wait: tuple[int, float] | None = None
 
     def limit_ns(self) -> int:
         """Simulated time the physics may run up to now."""
-        return min(self.newest_command_ns) + self.period_ns
+        limit = min(self.newest_command_ns) + self.period_ns
+        waited_for = [f.handled_ns for f in self._followers.values() if not f.released]
+        return min(limit, min(waited_for) + self.follower_slack_ns) if waited_for else limit
+
+    def follower(self, name: str, handled_ns: int, wall_s: float) -> bool:
+        """``name`` has handled its inputs up to ``handled_ns``; True when it joins (or joins again)."""
+        known = self._followers.get(name)
+        if known is None or known.released:
+            self._followers[name] = _Follower(handled_ns, wall_s)
+            return True
+        known.handled_ns = max(known.handled_ns, handled_ns)
+        known.heard_wall_s = wall_s
+        return False
+
+    def release_silent(self, wall_s: float) -> list[tuple[str, int]]:
+        """The followers simulated time waits for that were silent for ``release_s`` while it did: let go.
+
+        Returns each one's name and last word [ns].
+
+        Silent since they were last heard or since the wait began, whichever is later: a follower has
+        nothing to say while simulated time stands still for a controller.
+        """
+        if self._wait is None:
+            return []
+        at_ns, since_s = self._wait
+        released = []
+        for name, known in self._followers.items():
+            holding = known.handled_ns + self.follower_slack_ns <= at_ns
+            if not known.released and holding and wall_s - max(known.heard_wall_s, since_s) >= self.release_s:
+                known.released = True
+                released.append((name, known.handled_ns))
+        return released
 
     def command(self, stamp_ns: int, vehicle: int = 0) -> None:
         """A stamped command arrived (unstamped ones do not count: they belong to no period)."""
@@ -88,8 +141,12 @@ class Lockstep:
         elif self._wait is None or self._wait[0] != sim_ns:
             self._wait = (sim_ns, wall_s)
 
+    def waiting_for_commands(self) -> bool:
+        """Whether simulated time stands because of a controller (not only because of a follower)."""
+        return self._wait is not None and min(self.newest_command_ns) + self.period_ns <= self._wait[0]
+
     def waiting_s(self, wall_s: float) -> float:
-        """Wall time [s] simulated time has stood still waiting for a command (0 while it runs)."""
+        """Wall time [s] simulated time has stood still for a command or a follower (0 while it runs)."""
         return 0.0 if self._wait is None else wall_s - self._wait[1]
 
 

@@ -423,16 +423,34 @@ class VehicleSimulator:
         ``motor`` 0 repairs the vehicle. This replaces any earlier fault of that vehicle, a hidden one of
         the effect list (``actuator_fault``) included; the other vehicles keep theirs.
         """
+        self.inject_faults([] if motor == 0 else [(motor, effectiveness)], vehicle)
+
+    def inject_faults(self, faults: Sequence[tuple[int, float]], vehicle: int = 0) -> None:
+        """A vehicle's faults are now ``faults``: (motor 1..N, effectiveness 0..1) each, one per motor.
+
+        A fault already in force (same motor and effectiveness) keeps its onset; the others begin now
+        (rotors failing one after another: list the first, then both). An empty list repairs the vehicle.
+        Like :meth:`inject_fault` this replaces every earlier fault of that vehicle.
+        """
         k = self._vehicle(vehicle)
-        if not 0 <= motor <= self.airframe.n_rotors:
-            raise ValueError(f"fault motor must be 0 (none) or 1..{self.airframe.n_rotors}, got {motor}")
-        if not 0.0 <= effectiveness <= 1.0:
-            raise ValueError(f"fault effectiveness must be in [0, 1], got {effectiveness}")
-        self._faults[k] = (
-            []
-            if motor == 0
-            else [ActuatorFault(motor=motor, effectiveness=effectiveness, t_fault_s=self.t_s)]
-        )
+        motors = [motor for motor, _ in faults]
+        for motor, effectiveness in faults:
+            if not 1 <= motor <= self.airframe.n_rotors:
+                raise ValueError(f"fault motor must be 1..{self.airframe.n_rotors}, got {motor}")
+            if not 0.0 <= effectiveness <= 1.0:
+                raise ValueError(f"fault effectiveness must be in [0, 1], got {effectiveness}")
+        if len(set(motors)) != len(motors):
+            raise ValueError(f"one fault per motor: motors {motors}")
+        in_force = {
+            (int(f["motor"]), float(f["effectiveness"])): f
+            for f in self._faults[k]
+            if f.id == ActuatorFault.id
+        }
+        self._faults[k] = [
+            in_force.get((motor, float(effectiveness)))
+            or ActuatorFault(motor=motor, effectiveness=float(effectiveness), t_fault_s=self.t_s)
+            for motor, effectiveness in faults
+        ]
         self._rebuild_model()
 
     def injected_effectiveness(self, vehicle: int = 0) -> FloatArray:
