@@ -7,7 +7,8 @@ add_weight_*): the baseline is the normal flights of the same session (the file 
 the vehicle as it was built that day), leaving out the flight under test; `identify` fits k_f, the
 effects of ``--effects`` (default motor_lag: the Crazyflie's rotors answer in about 30 ms) and the
 rotor balance to them, `discrepancy` runs on the flight against the identified airframe. The table gives
-the truth (the folder), what was named, e_1..e_4 with standard deviations and the weakest rotor's z.
+the truth (the folder), what was named, e_1..e_4 with standard deviations and the weakest rotor's z
+("or M_k": rotors the rotor balance cannot tell from the weakest, ``indistinct_rotors``).
 
 Timing, per flight, in CPU time of this process (the machine is shared): `convert` of the binary log,
 the rotor balance alone (flight_balance + diagnose), and the whole `discrepancy` (translational
@@ -95,7 +96,8 @@ def main() -> int:
                     f"{e:.3f} ± {s:.3f}"
                     for e, s in zip(diagnosis.effectiveness, diagnosis.effectiveness_std, strict=True)
                 ),
-                f"M{weakest + 1} {diagnosis.z_scores[weakest]:+.1f}",
+                f"M{weakest + 1} {diagnosis.z_scores[weakest]:+.1f}"
+                + "".join(f" or M{k}" for k in diagnosis.indistinct_rotors),
             ]
         )
     headers = ["flight", "baseline", "named", "e_1", "e_2", "e_3", "e_4", "weakest, z"]

@@ -140,6 +140,60 @@ def test_without_acceleration_the_pitch_comes_from_the_velocity_and_without_eith
         convert(write(bare), crazyflie)
 
 
+def firmware_volts(command: np.ndarray) -> np.ndarray:
+    """motors.c: the voltage the firmware gives a motor for a command (65536 <-> 60 g, its bench polyfit)."""
+    thrust_g = command / 65536.0 * 60.0
+    return -0.0006239 * thrust_g**2 + 0.088 * thrust_g
+
+
+def test_the_rotor_command_is_the_voltage_the_motor_got_so_the_battery_counts_only_without_compensation(
+    crazyflie, tmp_path
+) -> None:
+    """Thrust follows duty x battery voltage; the firmware's compensation makes it follow motor.m alone."""
+    demanded = np.array([30000.0, 31000.0, 52000.0, 33000.0])
+    variables = [*STATE_VARIABLES, *[(f"pwm.m{k}_pwm", "I") for k in range(1, 5)]]
+
+    def convert_with(logged_motor, battery_mv: float):
+        """A hover whose motors got the voltages of ``demanded``, duty = voltage / battery (at most 100 %)."""
+        duty = np.minimum(firmware_volts(demanded) / (battery_mv * 1e-3), 1.0)
+        pwm = np.floor(duty * 65535.0)
+        records = [
+            (
+                stamp,
+                (*(int(m) for m in logged_motor(pwm)), int(battery_mv), *values[5:], *(int(d) for d in pwm)),
+            )
+            for _, stamp, values in hover_records(100)
+        ]
+        path = tmp_path / "log"
+        path.write_bytes(
+            usd_bytes(
+                {FIXED_FREQUENCY: ("fixedFrequency", variables)},
+                [(FIXED_FREQUENCY, stamp, values) for stamp, values in records],
+            )
+        )
+        return convert(path, crazyflie)
+
+    # Compensation on (what CrazyPAD's firmware did): the duty follows the battery, u_k is motor.m.
+    for battery_mv in (4100.0, 3400.0):
+        conversion = convert_with(lambda pwm: demanded, battery_mv)
+        u = np.column_stack([conversion.log.columns[f"u_{k}"] for k in range(1, 5)])
+        np.testing.assert_allclose(u, np.broadcast_to(demanded / 65535.0, u.shape), atol=1e-4)
+        assert "beyond 0.5% at 0 of 400 motor samples (0 at full duty)" in conversion.log.metadata["derived"]
+        assert not any("not the voltage the motors got" in warning for warning in conversion.warnings)
+    # Compensation off (motor.m is the duty): the same voltages, so the same u_k, whatever motor.m says.
+    conversion = convert_with(lambda pwm: pwm, 4100.0)
+    u = np.column_stack([conversion.log.columns[f"u_{k}"] for k in range(1, 5)])
+    np.testing.assert_allclose(u, np.broadcast_to(demanded / 65535.0, u.shape), atol=1e-4)
+    assert any("not the voltage the motors got at 100.0% of motor samples" in w for w in conversion.warnings)
+    # A battery too low for M3's voltage: full duty, and u_3 the command of what the battery could give.
+    conversion = convert_with(lambda pwm: demanded, 2600.0)
+    assert "(100 at full duty)" in conversion.log.metadata["derived"]
+    u_3 = conversion.log.columns["u_3"]
+    assert np.all(u_3 < 0.98 * demanded[2] / 65535.0)
+    np.testing.assert_allclose(firmware_volts(u_3 * 65535.0), 2.6, rtol=2e-4)
+    np.testing.assert_allclose(conversion.log.columns["u_1"], demanded[0] / 65535.0, atol=1e-4)
+
+
 def test_a_log_cut_short_is_read_up_to_its_last_whole_record_and_says_so(crazyflie, tmp_path) -> None:
     whole = usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", STATE_VARIABLES)}, hover_records(100))
     path = tmp_path / "cut"

@@ -85,7 +85,7 @@ def test_a_weakened_rotor_a_payload_and_nothing_are_told_apart_on_exact_thrusts(
         assert weakened.named == "rotor_effectiveness", weakened.headline()
         assert weakened.flagged == [rotor + 1]
         assert weakened.effectiveness[rotor] == pytest.approx(0.85, abs=0.01)
-        assert weakened.ambiguous_with == []
+        assert weakened.ambiguous_with == [] and weakened.indistinct_rotors == []
 
     two = diagnose(crazyflie, baseline, balance(normal / np.array([1.0, 0.8, 1.0, 0.9])))
     assert two.named == "rotor_effectiveness" and two.flagged == [2, 4]
@@ -99,6 +99,19 @@ def test_a_weakened_rotor_a_payload_and_nothing_are_told_apart_on_exact_thrusts(
         0.0011, abs=2e-4
     )
     assert "payload +3.0 g at r_x = -1.5 mm, r_y = +1.1 mm" in payload.headline()
+
+
+def test_rotors_whose_commands_rise_alike_are_named_together_not_one_of_them_at_random(crazyflie) -> None:
+    """A weight or drag change moving two same-spin rotors alike leaves their e_k within noise."""
+    normal = balanced_thrusts(crazyflie, 0.031)
+    baseline = RotorBaseline(normal, 0.01 * normal, 4, ("a", "b", "c", "d"))
+    alike = diagnose(crazyflie, baseline, balance(normal * [1.045, 1.0, 1.025, 1.0]))
+    assert alike.named == "rotor_effectiveness" and alike.flagged == [1], alike.headline()
+    assert alike.indistinct_rotors == [3]
+    assert "rotor 1 weakened (or rotor 3: e_3 - e_1 = +0.019, within 2 std" in alike.headline()
+    assert alike.to_json()["indistinct_rotors"] == [3]
+    apart = diagnose(crazyflie, baseline, balance(normal * [1.045, 1.0, 1.0, 1.0]))
+    assert apart.flagged == [1] and apart.indistinct_rotors == [], apart.headline()
 
 
 def test_one_baseline_flight_is_used_with_a_warning_and_the_airframe_section_is_checked(crazyflie) -> None:

@@ -33,6 +33,11 @@ baseline's mu_k:
 - ``none``: no rotor's e_k is below 1 by more than :data:`SIGNIFICANT_Z` standard deviations and the
   commands are where the baseline's scatter puts them.
 
+The rotors of one spin share the yaw balance: when the commands of two rotors rise alike (a change of
+weight, or of a rotor's drag torque, moves both), their e_k cannot tell which is weaker. Rotors whose e_k
+is within :data:`DISTINCT_Z` standard deviations of the weakest's are named with it as look-alikes
+(``indistinct_rotors``) instead of being left out.
+
 Each explanation is fitted by weighted least squares and judged by its residual (chi-square with its
 degrees of freedom, tail probability p): ``none`` when it holds and no rotor is flagged; otherwise the
 explanation with the larger p, and the other as a look-alike (the log cannot tell them apart) unless
@@ -57,6 +62,9 @@ from multirotor_ros.model.rotation import FloatArray
 SIGNIFICANT_Z = 3.0
 # An explanation is rejected when its residual is this improbable under the noise (chi-square tail).
 REJECT_P = 1e-3
+# A rotor cannot be told from the weakest when their e_k differ by less than this many standard deviations
+# of the difference (about 95 % two-sided).
+DISTINCT_Z = 2.0
 # Two explanations that both hold are look-alikes unless the better one's residual is this many times
 # more probable (chi-square tail probabilities) than the other's.
 DECISIVE_P_RATIO = 10.0
@@ -323,6 +331,8 @@ class RotorDiagnosis:
     ambiguous_with: list[str]
     suspect: FlightBalance
     notes: list[str] = field(default_factory=list)
+    # Rotors (1-based, not flagged) whose e_k cannot be told from the weakest rotor's.
+    indistinct_rotors: list[int] = field(default_factory=list)
 
     @property
     def z_scores(self) -> FloatArray:
@@ -345,6 +355,17 @@ class RotorDiagnosis:
                 or f"rotor {int(np.argmin(self.effectiveness)) + 1}"
             )
             verdict = f"rotor balance: rotor_effectiveness, {weakest} weakened"
+            if self.indistinct_rotors:
+                lowest = int(np.argmin(self.effectiveness))
+                verdict += (
+                    " (or "
+                    + ", ".join(
+                        f"rotor {k}: e_{k} - e_{lowest + 1} = "
+                        f"{self.effectiveness[k - 1] - self.effectiveness[lowest]:+.3f}"
+                        for k in self.indistinct_rotors
+                    )
+                    + f", within {DISTINCT_Z:g} std: this log cannot tell which is weaker)"
+                )
         else:
             payload = self.explanations[self.named].parameters
             verdict = (
@@ -363,6 +384,7 @@ class RotorDiagnosis:
             "effectiveness": self.effectiveness.tolist(),
             "effectiveness_std": self.effectiveness_std.tolist(),
             "flagged_rotors": self.flagged,
+            "indistinct_rotors": self.indistinct_rotors,
             "explanations": {name: e.to_json() for name, e in self.explanations.items()},
             "suspect": self.suspect.to_json(),
             "notes": self.notes,
@@ -448,6 +470,23 @@ def diagnose(airframe: Airframe, baseline: RotorBaseline, suspect: FlightBalance
         runner_up = explanations[other].p_value
         look_alike = explanations[other].holds and runner_up * DECISIVE_P_RATIO >= explanations[best].p_value
         named, ambiguous = best, [other] if look_alike else []
+    lowest = int(np.argmin(effectiveness))
+    indistinct = [
+        k + 1
+        for k in range(airframe.n_rotors)
+        if k != lowest
+        and k + 1 not in flagged
+        and effectiveness[k] - effectiveness[lowest]
+        < DISTINCT_Z * math.hypot(effectiveness_std[k], effectiveness_std[lowest])
+    ]
     return RotorDiagnosis(
-        named, effectiveness, effectiveness_std, flagged, explanations, ambiguous, suspect, notes
+        named,
+        effectiveness,
+        effectiveness_std,
+        flagged,
+        explanations,
+        ambiguous,
+        suspect,
+        notes,
+        indistinct if named == "rotor_effectiveness" else [],
     )

@@ -27,10 +27,17 @@ frame x forward, y left, z up, i.e. FLU; a missing variable is left out, never i
   rotating it back recovers the tilt. Rotor drag and accelerometer misalignment
   tilt the specific force off the body z axis; the notes give the RMS difference between the roll
   derived the same way and the logged roll (1-4 deg on CrazyPAD's flights) as the measure of that error.
-- ``motor.m1..m4`` (the motor power command, 0..65535, after the mixer and before the battery
-  compensation that turns it into ``pwm.m*_pwm``) -> ``u_k`` = command / 65535 (``normalized``), and
-  ``omega_k`` through the airframe's motor map. Without ``motor.m*``, ``pwm.m*_pwm`` is taken with a
-  warning (it moves with battery voltage at constant thrust).
+- ``motor.m1..m4`` (the motor power command, 0..65535, after the mixer and before the battery compensation
+  that turns it into ``pwm.m*_pwm``) -> ``u_k`` = command / 65535 (``normalized``), and ``omega_k``
+  through the airframe's motor map. A brushed motor's thrust follows the voltage it gets, duty x battery
+  voltage; the firmware's battery compensation (motors.c) sets the duty ``pwm = V(motor.m) / vbat`` from
+  its bench table V(T) of thrust against voltage, so that motor.m alone fixes the voltage. When
+  ``pwm.m*_pwm`` and the battery voltage are logged with the commands, ``u_k`` is the command whose
+  voltage the motor actually got, ``V^-1(pwm / 65535 x vbat)``: the same as motor.m while the compensation
+  holds (CrazyPAD: within 2e-4 of full scale median, 1.2e-3 at worst), and the thrust the motor could give
+  where it did not (compensation off, or the battery too low for the voltage: duty at 100 %); the notes
+  say which and how often. Without ``motor.m*``, ``pwm.m*_pwm`` is taken the same way with the battery
+  voltage, or as it is with a warning (it moves with battery voltage at constant thrust).
 - ``pm.vbatMV`` [mV] or ``pm.vbat`` [V] -> extra column ``battery_v``.
 
 Rotor k of the airframe is Bitcraze's motor M_k matched by geometry (M1 front-right, M2 rear-right,
@@ -58,6 +65,14 @@ from multirotor_ros.model.airframe import Airframe
 USD_MAGIC = 0xBC
 CRAZYFLIE_GRAVITY_M_S2 = 9.81
 MOTOR_COMMAND_FULL_SCALE = 65535.0
+# crazyflie-firmware src/drivers/src/motors.c, motorsCompensateBatteryVoltage: the voltage V [V] a brushed
+# motor needs for a thrust T [g of the whole vehicle] is V = a T^2 + b T (Bitcraze's polyfit of its bench
+# table, thrust 0-57.9 g at 0-3.09 V), with the command scale 65536 <-> 60 g.
+FIRMWARE_VOLTS_PER_GRAM = (-0.0006239, 0.088)
+FIRMWARE_FULL_SCALE_THRUST_G = 60.0
+# The applied voltage agrees with motor.m (the compensation held) within this share of full scale: the
+# duty is an integer and the logged battery voltage a sample of what the firmware filtered.
+COMPENSATION_TOLERANCE = 0.005
 # Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
 HELD_HEADING_STD_DEG = 2.6
 _PREAMBLE = struct.Struct("<BHH")
@@ -228,6 +243,71 @@ def _columns(event: UsdEvent, names: Sequence[str]) -> np.ndarray:
     return np.column_stack([event.column(name) for name in names])
 
 
+def command_of_applied_voltage(volts: np.ndarray) -> tuple[np.ndarray, int]:
+    """The firmware's motor command / 65535 whose voltage (motors.c's table) is ``volts``, and a count.
+
+    The count is of the voltages beyond the table's fit (its vertex, 3.10 V), taken as the vertex.
+    """
+    a, b = FIRMWARE_VOLTS_PER_GRAM
+    vertex_v = -b * b / (4.0 * a)
+    volts = np.asarray(volts, dtype=float)
+    beyond = int(np.count_nonzero(volts > vertex_v))
+    # The rising branch of a T^2 + b T = V (a < 0).
+    thrust_g = (-b + np.sqrt(np.clip(b * b + 4.0 * a * np.clip(volts, 0.0, None), 0.0, None))) / (2.0 * a)
+    return thrust_g / FIRMWARE_FULL_SCALE_THRUST_G * (
+        MOTOR_COMMAND_FULL_SCALE + 1
+    ) / MOTOR_COMMAND_FULL_SCALE, beyond
+
+
+def _battery_variable(event: UsdEvent) -> tuple[str, float] | None:
+    """The battery voltage this event logs, with its scale to volts."""
+    for name, scale in (("pm.vbatMV", 1e-3), ("pm.vbat", 1.0)):
+        if event.has(name):
+            return name, scale
+    return None
+
+
+def _applied_voltage_commands(
+    motors: UsdEvent, commanded: np.ndarray | None, pwm_names: Sequence[str], warnings: list[str]
+) -> tuple[np.ndarray, str] | None:
+    """u_k from the voltage the motors got (duty x battery), with the note on how it compares with motor.m.
+
+    None when the duty or the battery voltage is not logged with the motor records.
+    """
+    battery = _battery_variable(motors)
+    if battery is None or not motors.has(*pwm_names):
+        return None
+    name, scale = battery
+    duty = _columns(motors, pwm_names) / MOTOR_COMMAND_FULL_SCALE
+    volts = duty * (motors.column(name) * scale)[:, None]
+    commands, beyond = command_of_applied_voltage(volts)
+    how = (
+        f"u_k: the voltage motor k got, pwm.m_k_pwm / 65535 x {name}, as the firmware's command for it "
+        "(motors.c's thrust-voltage table inverted) / 65535"
+    )
+    if beyond:
+        warnings.append(
+            f"{beyond} motor samples got more than the firmware's thrust-voltage table covers (3.10 V): "
+            "taken as its top"
+        )
+    if commanded is None:
+        return commands, how + "; motor.m1..m4 not logged"
+    saturated = int(np.count_nonzero(duty >= 1.0))
+    departed = np.abs(commands - commanded) > COMPENSATION_TOLERANCE
+    agreement = (
+        f"; it matches motor.m_k within {float(np.median(np.abs(commands - commanded))):.2e} of full scale "
+        f"(median), beyond {COMPENSATION_TOLERANCE:.1%} at {int(np.count_nonzero(departed))} of "
+        f"{departed.size} motor samples ({saturated} at full duty)"
+    )
+    if np.mean(departed) > 0.01:
+        warnings.append(
+            f"motor.m1..m4 is not the voltage the motors got at {np.mean(departed):.1%} of motor samples "
+            f"(battery compensation off, or {saturated} at full duty: the battery could not give it): u_k "
+            "from duty x battery voltage"
+        )
+    return commands, how + agreement
+
+
 def convert_crazyflie_usd(
     path: str | Path, airframe: Airframe, rotor_channels: str | None = None
 ) -> tuple[FlightLog, list[str]]:
@@ -258,7 +338,6 @@ def convert_crazyflie_usd(
                 f"{path}: no motor commands (motor.m1..m4 or pwm.m1_pwm..m4_pwm): a rotor group is needed; "
                 "CrazyPAD's controller_data files log the controller, its motor_data files the motors"
             )
-        warnings.append("motor.m1..m4 not logged: u_k from pwm.m*_pwm, which rises as the battery drains")
     t, rows, dropped = sort_unique(motion.stamps_s, np.arange(motion.stamps_s.size, dtype=float))
     if dropped:
         warnings.append(f"{dropped} records with repeated stamps dropped")
@@ -332,9 +411,19 @@ def convert_crazyflie_usd(
         )
     except RotorChannelError as error:
         raise ConversionError(f"{path}: {error}") from None
+    commands = _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE
+    applied = _applied_voltage_commands(
+        motors, None if motor_names == pwm_names else commands, pwm_names, warnings
+    )
+    if applied is not None:
+        commands, how = applied
+        taken.append(how)
+        label = "the voltage the motors got (pwm.m*_pwm x battery) as the firmware's motor command / 65535"
+    elif motor_names == pwm_names:
+        warnings.append("motor.m1..m4 not logged: u_k from pwm.m*_pwm, which rises as the battery drains")
     warning = builder.put_actuators(
         motors.stamps_s,
-        _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE,
+        commands,
         channels,
         channel_note,
         "normalized",
