@@ -58,10 +58,12 @@ fail() {
     exit 1
 }
 
-# Whatever decides the contents of .venv; a sourced ROS changes which ROS the venv uses.
+# Whatever decides the contents of .venv (cli/node.py lists the executables: console scripts and launchers);
+# a sourced ROS changes which ROS the venv uses.
 stamp_key() {
     find ros_interfaces -type f | LC_ALL=C sort |
-        xargs cat setup.py setup.cfg package.xml scripts/bootstrap.sh scripts/ament_layout.py | sha256sum | cut -c1-64
+        xargs cat setup.py setup.cfg package.xml scripts/bootstrap.sh scripts/ament_layout.py multirotor_ros/cli/node.py |
+            sha256sum | cut -c1-64
     echo "ros_distro=${ROS_DISTRO:-none}"
 }
 

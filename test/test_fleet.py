@@ -1,5 +1,7 @@
 """Several vehicles in one simulator node, one clock, a controller each, over real ROS 2 (issue 10).
 
+The controllers run as a process each or as the nodes of one ``fleet_controller`` process.
+
 The simulator steps every vehicle of its ``vehicles`` list in one batched kernel call and publishes one
 ``/clock``; each vehicle has its own topics and frames under its name, and its own fault parameters.
 """
@@ -13,6 +15,8 @@ from nav_msgs.msg import Odometry
 from ros_harness import NodeProcess, RosProbe
 from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
 
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.fleet_controller import FleetControllerNode
 from multirotor_ros.nodes.messages import stamp_from_ns
 from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
 from multirotor_ros.simulation.pacing import NS_PER_S
@@ -46,7 +50,24 @@ def test_vehicle_entries_are_parsed_and_bad_ones_named() -> None:
 
 
 @pytest.mark.ros
-def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path) -> None:
+def test_a_fleet_controller_without_vehicles_or_with_a_bad_one_ends_with_status_2_and_the_reason(
+    capsys,
+) -> None:
+    def run(*parameters: str) -> int:
+        ros_args = [a for p in parameters for a in ("-p", p)]
+        return run_node(FleetControllerNode, ["fleet_controller", "--ros-args", *ros_args])
+
+    assert run() == 2
+    assert "parameter vehicles: name at least one vehicle" in capsys.readouterr().err
+    assert run("vehicles:=['uav1', '2uav']") == 2
+    assert "vehicles[1] '2uav': must start with a name" in capsys.readouterr().err
+    assert run("vehicles:=['uav1']", "airframe:=no_such_frame") == 2  # a controller's own check
+    assert "unknown airframe 'no_such_frame'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("composed", [False, True], ids=["a-controller-process-each", "one-fleet-controller"])
+def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, composed: bool) -> None:
+    """Three controllers, as three processes or as the nodes of one ``fleet_controller`` process."""
     probe = RosProbe()
     odom = {name: probe.subscribe(f"/{name}/odom", Odometry, qos=1000) for name in FLEET}
     faults = probe.subscribe("/uav2/injected_faults", DiagnosticArray)
@@ -59,12 +80,25 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path) ->
             "vehicles": [entry for entry, _ in FLEET.values()],
         },
     )
-    controllers = [
-        NodeProcess(
-            "controller", tmp_path / f"{name}.log", namespace=f"/{name}", parameters={"use_sim_time": True}
-        )
-        for name in FLEET
-    ]
+    controllers = (
+        [
+            NodeProcess(
+                "fleet_controller",
+                tmp_path / "fleet_controller.log",
+                parameters={"use_sim_time": True, "vehicles": list(FLEET)},
+            )
+        ]
+        if composed
+        else [
+            NodeProcess(
+                "controller",
+                tmp_path / f"{name}.log",
+                namespace=f"/{name}",
+                parameters={"use_sim_time": True},
+            )
+            for name in FLEET
+        ]
+    )
     try:
         for name, (_, target) in FLEET.items():
             setpoints = probe.publisher(f"/{name}/setpoint", type(setpoint_message(0, 0, 0)))
@@ -87,6 +121,12 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path) ->
         assert [s.values[0].value for s in truth.status] == ["1", "1", "0", "1", "1", "1", "1", "1"]
         log = simulator.log_text()
         assert "3 vehicles (uav1, uav2, uav3)" in log and "uav2/rotor 3 effectiveness 0" in log
+        if composed:
+            log = controllers[0].log_text()
+            assert "3 controllers: /uav1/controller, /uav2/controller, /uav3/controller" in log, log
+            # The same node as a process of its own: its parameters, under its own name.
+            (outcome,) = probe.set_parameters("/uav2/controller", {"k_px": -1.0}).values()
+            assert not outcome.successful and "k_px" in outcome.reason, outcome.reason
     finally:
         for process in [*controllers, simulator]:
             process.stop()

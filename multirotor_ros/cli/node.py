@@ -11,7 +11,15 @@ HELP = "run a ROS 2 node of this package (simulator, controller, identifier, mav
 
 # The executables of `ros2 run multirotor_ros NAME`, each the module multirotor_ros.nodes.NAME; a pip
 # install also puts them on PATH as multirotor-NAME (scripts/ament_layout.py console_script_name).
-NODE_EXECUTABLES = ("simulator", "controller", "identifier", "mavlink_bridge", "mission", "visualizer")
+NODE_EXECUTABLES = (
+    "simulator",
+    "controller",
+    "fleet_controller",
+    "identifier",
+    "mavlink_bridge",
+    "mission",
+    "visualizer",
+)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -1,12 +1,13 @@
 """The entry point every node executable shares: ``main(args)`` is ``run_node(NodeClass, args)``.
 
-``run_node(node_factory, args) -> int`` initialises rclpy in a context of its own (shut down on the
-way out), builds the node with ``node_factory(context=context)``, spins it (``spin``) with the
-executor ``make_executor`` picks, and returns 0 when the spin ends by Ctrl-C (KeyboardInterrupt), by
-SIGINT/SIGTERM (rclpy shuts the context down) or by any other shutdown of the context. A node class
-whose ``__init__`` forwards ``**kwargs`` to ``rclpy.node.Node`` is a valid factory. A bad parameter or
-airframe while the node is built (ValueError, ParameterException): one line on stderr, status 2. An
-exception raised by a callback ends the spin and propagates (a traceback, status 1).
+``run_node(node_factory, args) -> int`` initialises rclpy in a context of its own (shut down on the way
+out), builds the node with ``node_factory(context=context)``, spins it (``spin``) with the executor
+``make_executor`` picks (with the nodes of its ``members`` attribute, if it has one: several nodes composed
+in one process, nodes/fleet_controller.py), and returns 0 when the spin ends by Ctrl-C (KeyboardInterrupt),
+by SIGINT/SIGTERM (rclpy shuts the context down) or by any other shutdown of the context. A node class whose
+``__init__`` forwards ``**kwargs`` to ``rclpy.node.Node`` is a valid factory. A bad parameter or airframe
+while the node is built (ValueError, ParameterException): one line on stderr, status 2. An exception raised
+by a callback ends the spin and propagates (a traceback, status 1).
 
 Environment:
     ``MULTIROTOR_ROS_EXECUTOR``: ``events`` (default; rclpy.experimental.EventsExecutor) or ``single``
@@ -80,7 +81,8 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
                     print(f"{Path(sys.argv[0] if args is None else args[0]).name}: {error}", file=sys.stderr)
                     return 2
                 executor = make_executor(context, node)
-                executor.add_node(node)
+                for spun in _with_members(node):
+                    executor.add_node(spun)
                 if not isinstance(executor, SingleThreadedExecutor):
                     signals.enter_context(_signals_set(stop))  # until the node is torn down
                 with _profiled(node):
@@ -98,10 +100,16 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
                     # Detach the EventsExecutor's middleware callbacks before the node's entities go.
                     executor.shutdown(timeout_sec=STOP_GRACE_S)
                 if node is not None:
-                    node.destroy_node()
+                    for spun in _with_members(node):
+                        spun.destroy_node()
     finally:
         finished.set()
     return 0
+
+
+def _with_members(node: Node) -> list[Node]:
+    """``node`` and the nodes it holds (``members``), spun and destroyed together."""
+    return [node, *getattr(node, "members", ())]
 
 
 # How long an error in the spin waits for a shutdown that may have caused it [s].
@@ -153,7 +161,8 @@ def make_executor(context: Context, node: Node | None = None) -> Executor:
     if choice not in EXECUTORS:
         print(f"{EXECUTOR_ENV}={choice!r} is none of {', '.join(EXECUTORS)}: using events", file=sys.stderr)
         choice = EXECUTORS[0]
-    if choice == "events" and not (node is not None and (list(node.guards) or _needs_the_time_source(node))):
+    spun = [] if node is None else _with_members(node)
+    if choice == "events" and not any(list(n.guards) or _needs_the_time_source(n) for n in spun):
         try:
             from rclpy.experimental import EventsExecutor
 

@@ -366,7 +366,8 @@ class _VehicleTopics:
         self.command_gate = StampGate(future_tolerance_s=publish_period_s) if clock_on else StampGate()
         self.refusals = RefusalCounter(node.get_logger().warning, prefix + "motor_speed_cmd")
         self.unstamped_commands = 0
-        self.last_odometry: Odometry | None = None
+        # The newest message of each state topic, sent again while lockstep waits (_resend_state).
+        self.last_sent: dict[str, Any] = {}
         self.publishers = {
             # Deep queues: a subscriber busy for a moment (the identifier refitting) still gets the backlog.
             "odom": node.create_publisher(Odometry, prefix + "odom", STATE_QUEUE_DEPTH),
@@ -387,6 +388,11 @@ class _VehicleTopics:
             )
             for topic in node.follower_topics
         ]
+
+    def send(self, kind: str, message: Any) -> None:
+        """Publish on one of the state topics, and keep the message to send again (_resend_state)."""
+        self.last_sent[kind] = message
+        self.publishers[kind].publish(message)
 
 
 class SimulatorNode(Node):
@@ -777,15 +783,15 @@ class SimulatorNode(Node):
                 if self._clock_pub is not None and reading.vehicle == len(self.vehicles) - 1:
                     self._clock_pub.publish(Clock(clock=stamp))
             elif kind == "imu":
-                vehicle.publishers["imu"].publish(
-                    simulated_imu_message(stamp, vehicle.frames[1], data, self.sim.sensor_config)
+                vehicle.send(
+                    "imu", simulated_imu_message(stamp, vehicle.frames[1], data, self.sim.sensor_config)
                 )
             elif kind == "pose":
-                vehicle.publishers["pose"].publish(pose_message(stamp, vehicle.frames[0], *data))
+                vehicle.send("pose", pose_message(stamp, vehicle.frames[0], *data))
             elif kind == "range":
                 vehicle.publishers["range"].publish(self._range_message(stamp, vehicle.frames[1], data))
             elif kind == "motor_speeds":
-                vehicle.publishers["motor_speeds"].publish(joint_state_from_rotor_speeds(data, stamp))
+                vehicle.send("motor_speeds", joint_state_from_rotor_speeds(data, stamp))
             elif kind == "crash":
                 vehicle.crashed.publish(Bool(data=True))
                 which = f"{vehicle.spec.name}: " if vehicle.spec.name else ""
@@ -803,16 +809,20 @@ class SimulatorNode(Node):
         """A vehicle's odom, with its covariances, and its transform on /tf."""
         odometry = odometry_message(state, stamp, *vehicle.frames)
         odometry.pose.covariance, odometry.twist.covariance = self._odometry_covariances
-        vehicle.last_odometry = odometry
-        vehicle.publishers["odom"].publish(odometry)
+        vehicle.send("odom", odometry)
         if self._tf_pub is not None:
             self._tf_pub.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
 
     def _resend_state(self) -> None:
-        """The newest odometry and clock again (same stamps), for a controller that is starting."""
+        """The newest state messages and clock again (same stamps).
+
+        For a controller that is starting, and for a follower that lost one (imu and pose are best
+        effort): without it the follower's word could not pass that stamp, and the wait would last until
+        the follower is let go.
+        """
         for vehicle in self.vehicles:
-            if vehicle.last_odometry is not None:
-                vehicle.publishers["odom"].publish(vehicle.last_odometry)
+            for kind, message in vehicle.last_sent.items():
+                vehicle.publishers[kind].publish(message)
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.sim.t_ns)))
 

@@ -1,0 +1,75 @@
+"""The ``fleet_controller`` executable: the controllers of several vehicles in one process (issue 10).
+
+Each vehicle of ``vehicles`` (the simulator's list: ``"NAME [X Y Z [YAW]]"``, the pose ignored here,
+nodes/vehicles.py) gets a ``controller`` node of its own (nodes/controller.py) in the namespace
+``NAME`` under this node's: the same topics, parameters, services and logs as a controller process per
+vehicle, ``ros2 param set /uav2/controller ...`` included. They share one process and one executor, as
+ROS 2 composes nodes in a component container, which rclpy does not offer: a controller process costs
+its interpreter, its DDS participant and its own ``/clock`` traffic, and with one process per vehicle a
+2-core machine kept the control periods of 4 vehicles on time only 23 % of the time
+(bench/bench_fleet_ros.py). Parameters given with ``-p`` apply to every controller; a parameters file
+sets one vehicle's under ``/NAME/controller``. Example::
+
+    ros2 run multirotor_ros fleet_controller --ros-args -p vehicles:="['uav1', 'uav2']" -p use_sim_time:=true
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from multirotor_ros.nodes.controller import ControllerNode
+from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.vehicles import parse_vehicles
+
+
+class FleetControllerNode(Node):
+    """Holds one ``ControllerNode`` per vehicle (``members``, spun beside it by ``run_node``)."""
+
+    # No timer and no time of its own; its members keep theirs (nodes/entry.py make_executor).
+    KEEPS_ITS_OWN_SIMULATED_TIME = True
+
+    def __init__(self, **kwargs: Any):
+        super().__init__("fleet_controller", **kwargs)
+        listed = self.declare_parameter(
+            "vehicles",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(
+                type=ParameterType.PARAMETER_STRING_ARRAY,
+                description="the vehicles to control, as the simulator's vehicles list: 'NAME [X Y Z [YAW]]'",
+                read_only=True,
+            ),
+        ).value
+        vehicles = parse_vehicles(listed or [])
+        if not vehicles:
+            raise ValueError(
+                "parameter vehicles: name at least one vehicle, e.g. vehicles:=\"['uav1', 'uav2']\""
+            )
+        namespace = self.get_namespace().rstrip("/")
+        self.members: list[Node] = []
+        try:
+            for vehicle in vehicles:
+                member = ControllerNode(**kwargs, namespace=f"{namespace}/{vehicle.name}")
+                self.members.append(member)
+                if member.get_namespace() != f"{namespace}/{vehicle.name}":
+                    # A namespace remapped for the whole process (-r __ns:=...) wins over the members' own.
+                    raise ValueError(
+                        f"controller of {vehicle.name} is in {member.get_namespace()}, not "
+                        f"{namespace}/{vehicle.name}: remap this node's namespace with -r "
+                        "fleet_controller:__ns:=/NS, not -r __ns:=/NS (that moves every node of the process)"
+                    )
+        except Exception:
+            for built in self.members:
+                built.destroy_node()
+            raise
+        self.get_logger().info(
+            f"{len(vehicles)} controllers: " + ", ".join(m.get_fully_qualified_name() for m in self.members)
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run multirotor_ros fleet_controller`` (``multirotor node fleet_controller``)."""
+    return run_node(FleetControllerNode, args)
