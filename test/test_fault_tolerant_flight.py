@@ -101,6 +101,16 @@ def hover_error(vehicle: Vehicle, t0: float, t1: float) -> np.ndarray:
     return np.linalg.norm(positions - HOVER, axis=1)
 
 
+def healthy_and_sure(n_rotors: int) -> Callable[[Float64MultiArray], bool]:
+    """Whether a rotor_effectiveness message says every rotor healthy, each with std < 0.1."""
+
+    def check(message: Float64MultiArray) -> bool:
+        estimate, std = effectiveness_from_message(message, n_rotors)
+        return bool(np.all(estimate == 1.0) and np.all(std < 0.1))
+
+    return check
+
+
 def publish_diagnosis(probe: RosProbe, namespace: str, estimate: list[float], std: float) -> None:
     """Send a rotor_effectiveness as the identifier would (the controller keeps the latest one)."""
     publisher = probe.publisher(f"{namespace}/rotor_effectiveness", Float64MultiArray)
@@ -141,14 +151,10 @@ def test_rotor_3_stopped_is_named_reallocated_and_the_x8_is_back_near_its_no_fau
 
             diagnostics.wait_for(settled, timeout=120.0)
 
-            def healthy_and_sure(message: Float64MultiArray) -> bool:
-                estimate, std = effectiveness_from_message(message, 8)
-                return bool(np.all(estimate == 1.0) and np.all(std < 0.1))
-
             # Before the observer has converged nothing is known (std 1), then every rotor is healthy.
             first_estimate, first_std = effectiveness_from_message(effectiveness.wait_for()[0], 8)
             assert np.all(first_estimate == 1.0) and np.all(first_std == 1.0)
-            effectiveness.wait_for(healthy_and_sure, timeout=30.0)
+            effectiveness.wait_for(healthy_and_sure(8), timeout=30.0)
             before = stamp_s(vehicle.latest())
             no_fault_level = hover_error(vehicle, before, before + 2.0).max()
             (result,) = probe.set_parameters("/ft1/simulator", {"fault_motor": 3}).values()
@@ -187,12 +193,7 @@ def test_the_hexarotor_with_a_rotor_stopped_holds_its_hover_and_says_it_gives_up
         with NodeProcess(
             "identifier", tmp_path / "identifier.log", namespace="/ft4", parameters=hexarotor
         ) as identifier:
-
-            def healthy_and_sure(message: Float64MultiArray) -> bool:
-                estimate, std = effectiveness_from_message(message, 6)
-                return bool(np.all(estimate == 1.0) and np.all(std < 0.1))
-
-            effectiveness.wait_for(healthy_and_sure, timeout=120.0)
+            effectiveness.wait_for(healthy_and_sure(6), timeout=120.0)
             # The fast stopped-rotor test learns the residual's noise over the identifier's first seconds
             # (a fault before that takes the observer's slower path): hover 3 s more first.
             settled_at = stamp_s(vehicle.latest())
@@ -241,11 +242,7 @@ def test_the_x8_losing_rotor_3_and_then_rotor_6_holds_its_hover(probe: RosProbe,
 
                 return check
 
-            def healthy_and_sure(message: Float64MultiArray) -> bool:
-                estimate, std = effectiveness_from_message(message, 8)
-                return bool(np.all(estimate == 1.0) and np.all(std < 0.1))
-
-            effectiveness.wait_for(healthy_and_sure, timeout=120.0)
+            effectiveness.wait_for(healthy_and_sure(8), timeout=120.0)
             settled_at = stamp_s(vehicle.latest())
             assert hover_error(vehicle, settled_at, settled_at + 3.0).max() < 0.02
             (refused,) = probe.set_parameters("/ft5/simulator", {"faults": "3:0, 9:0"}).values()
