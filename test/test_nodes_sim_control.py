@@ -11,6 +11,7 @@ that their numbers do not depend on how loaded the machine is; times below are s
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -316,7 +317,7 @@ def test_the_x8_keeps_flying_after_rotor_3_stops(vehicle: Vehicle, probe: RosPro
 
 
 @pytest.mark.ros
-def test_a_second_simulator_publishing_the_clock_is_refused_before_it_publishes(
+def test_a_second_simulator_publishing_the_clock_is_refused(
     vehicle: Vehicle, probe: RosProbe, tmp_path
 ) -> None:
     vehicle.latest()
@@ -332,10 +333,50 @@ def test_a_second_simulator_publishing_the_clock_is_refused_before_it_publishes(
     finally:
         second.stop(check=False)
     log = second.log_text()
-    assert "another node already publishes /clock (" in log and "/t1/simulator" in log
-    # It never published: the graph's time never went back to the second simulator's 0.
-    times = [stamp_to_ns(m.clock) for m in clock.messages]
-    assert times == sorted(times)
+    assert "/t1/simulator" in log, log
+    if "another node already publishes /clock (" in log:
+        # Refused before it published: the graph's time never went back to the second simulator's 0.
+        times = [stamp_to_ns(m.clock) for m in clock.messages]
+        assert times == sorted(times)
+    else:
+        # Discovery was later than its check (seen in CI at load 6+): the first one's claim stopped it.
+        assert "/t1/simulator claimed /clock " in log and "so this simulator stops" in log, log
+    vehicle.latest()  # the first one flies on
+    assert vehicle.simulator.running
+
+
+@pytest.mark.ros
+def test_of_two_simulators_started_together_the_second_to_claim_the_clock_stops(
+    probe: RosProbe, tmp_path
+) -> None:
+    # A clock and claim topic of their own: the module's vehicle keeps the graph's /clock meanwhile.
+    remaps = {"/clock": "/clock_of_two", "/clock_claim": "/clock_claim_of_two"}
+    clock = probe.subscribe("/clock_of_two", Clock, qos_profile_sensor_data)
+    simulators = {
+        name: NodeProcess(
+            "simulator",
+            tmp_path / f"{name}.log",
+            namespace=f"/{name}",
+            parameters={"real_time_factor": 0.0, "publish_clock": True, "airframe": "quad_x"},
+            remaps=remaps,
+        )
+        for name in ("twin_a", "twin_b")
+    }
+    try:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while all(s.running for s in simulators.values()) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        stopped = [name for name, s in simulators.items() if not s.running]
+        assert len(stopped) == 1, {name: s.log_tail() for name, s in simulators.items()}
+        (survivor,) = set(simulators) - set(stopped)
+        assert simulators[stopped[0]].process.returncode == 2
+        assert f"/{survivor}/simulator" in simulators[stopped[0]].log_text()
+        time.sleep(2.0)  # the survivor heard the other's claim too, and keeps the clock
+        assert simulators[survivor].running, simulators[survivor].log_tail()
+        assert clock.wait_for(count=1, timeout=10.0)
+    finally:
+        for simulator in simulators.values():
+            simulator.stop(check=False)
 
 
 @pytest.mark.ros

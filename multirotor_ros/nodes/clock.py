@@ -2,19 +2,75 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMessage
+from std_msgs.msg import Header
 
-from multirotor_ros.nodes.messages import stamp_to_ns
+from multirotor_ros.nodes.messages import LATCHED_QOS, stamp_from_ns, stamp_to_ns
 
 # The graph's one clock, whatever the publisher's namespace (rclpy's time source listens on /clock).
 GRAPH_CLOCK_TOPIC = "/clock"
 # As rclpy's time source subscribes to ``clock``: only the newest time matters.
 CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+# Who publishes the graph's clock, and since when (ClockClaim): reliable and transient local, so a node that
+# discovers the claimant late still gets its claim.
+CLOCK_CLAIM_TOPIC = "/clock_claim"
+CLAIM_REPEAT_S = 2.0  # [s] wall time between repetitions of a claim (ClockClaim)
+
+
+class ClockClaim:
+    """One publisher of ``/clock`` per graph, decided by who claimed it first.
+
+    A node that publishes the clock stakes its claim when it starts (:meth:`stake`): a ``std_msgs/Header`` on
+    ``/clock_claim`` whose stamp is the wall time (system clock) of the claim and whose ``frame_id`` is the
+    node's fully qualified name. Every claim heard from another node is kept (:attr:`heard`); once this
+    node has claimed, a claim that came first (earlier stamp; the smaller name on a tie) makes this node
+    yield: ``on_yield(name, earlier_by_s)`` is called once. Why: the check before publishing (listening
+    for another clock) depends on discovery, which on a loaded machine took over 4 s, and two simulators
+    started together both pass it; the claims settle it whenever discovery completes, the same way on
+    both sides, so exactly one keeps the clock. The claim is repeated every ``CLAIM_REPEAT_S``: Fast DDS
+    was seen to lose a transient-local sample published while the reader was being matched (neither
+    delivered live nor as history).
+    """
+
+    def __init__(self, node: Node, on_yield: Callable[[str, float], None]):
+        self._name = node.get_fully_qualified_name()
+        self._on_yield = on_yield
+        self._publisher = node.create_publisher(Header, CLOCK_CLAIM_TOPIC, LATCHED_QOS)
+        node.create_subscription(Header, CLOCK_CLAIM_TOPIC, self._heard, LATCHED_QOS)
+        self.heard: dict[str, int] = {}  # other claimants -> their claim's wall time [ns]
+        self.mine: tuple[int, str] | None = None
+        self.yielded = False
+        self._node = node
+
+    def stake(self) -> None:
+        """Claim the clock now (publish the claim) and yield at once to any earlier claim already heard."""
+        self.mine = (time.time_ns(), self._name)
+        self._publish()
+        self._node.create_timer(CLAIM_REPEAT_S, self._publish, clock=steady_clock())
+        for name, claimed_ns in list(self.heard.items()):
+            self._compare(name, claimed_ns)
+
+    def _publish(self) -> None:
+        assert self.mine is not None
+        self._publisher.publish(Header(stamp=stamp_from_ns(self.mine[0]), frame_id=self._name))
+
+    def _heard(self, claim: Header) -> None:
+        if claim.frame_id == self._name:
+            return
+        claimed_ns = stamp_to_ns(claim.stamp)
+        self.heard[claim.frame_id] = claimed_ns
+        self._compare(claim.frame_id, claimed_ns)
+
+    def _compare(self, name: str, claimed_ns: int) -> None:
+        if self.mine is not None and not self.yielded and (claimed_ns, name) < self.mine:
+            self.yielded = True
+            self._on_yield(name, (self.mine[0] - claimed_ns) * 1e-9)
 
 
 def steady_clock() -> Clock:

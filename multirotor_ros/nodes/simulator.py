@@ -61,7 +61,11 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers; while
   the graph lists another clock publisher not heard yet, or lists no other node at all (discovery not
   done: seen on a loaded machine after 2 s), it listens on, up to ``CLOCK_CHECK_MAX_S`` and
-  ``LONE_CHECK_S``.
+  ``LONE_CHECK_S``. Discovery can take longer than that on a loaded machine, and two simulators started
+  together both pass the check; so each one that publishes the clock also claims it on ``/clock_claim``
+  (nodes/clock.py ``ClockClaim``, transient local), and the one whose claim came second stops with
+  status 2 as soon as it hears the first one's, naming it: one clock in the graph whenever discovery
+  completes.
   Several vehicles share one simulator node and its clock.
 - ``pacing`` (diagnostic_msgs/DiagnosticArray, 1 Hz wall): one status ``simulator pacing`` with the
   target and achieved real-time factors, control periods on time and late, commands, lockstep waits.
@@ -102,7 +106,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, steady_clock
+from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, ClockClaim, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
     LATCHED_QOS,
@@ -148,6 +152,10 @@ UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
 # How long a simulator that sees no other node in the graph waits for discovery before it concludes it is
 # alone: a second simulator under CI load had neither heard nor listed the first after 2 s.
 LONE_CHECK_S = 4.0
+ONE_CLOCK_ADVICE = (
+    "Fly several vehicles in one simulator node (parameter vehicles), or give each simulator a "
+    "ROS_DOMAIN_ID of its own"
+)
 # While lockstep waits: resend the newest state this often; warn about a silent controller after
 # STALL_WARNING_S and again every STALL_REPEAT_S (wall time).
 RESEND_PERIOD_S = 0.25
@@ -514,9 +522,11 @@ class SimulatorNode(Node):
             self._clock_listener = self.create_subscription(
                 Clock, GRAPH_CLOCK_TOPIC, self._hear_clock, CLOCK_QOS
             )
+            self._clock_claim: ClockClaim | None = ClockClaim(self, self._yield_the_clock)
             self._clock_watch_since_s = time.monotonic()
             self._clock_watch = self.create_timer(CLOCK_CHECK_S, self._watch_clocks, clock=wall)
         else:
+            self._clock_claim = None
             self._start()
         self.get_logger().info(
             f"{self.airframe.name}: "
@@ -534,6 +544,8 @@ class SimulatorNode(Node):
 
     def _start(self) -> None:
         self._started = True
+        if self._clock_claim is not None:
+            self._clock_claim.stake()
         if self._clock_pub is None:
             self._stamp_offset_ns = self.get_clock().now().nanoseconds
         self._achieved = AchievedRate(time.monotonic(), self.sim.t_ns)
@@ -585,8 +597,10 @@ class SimulatorNode(Node):
             for name in self._publisher_names(GRAPH_CLOCK_TOPIC)
             if name != self.get_fully_qualified_name()
         ]
-        heard = self._clock_heard
-        named = [name for name in others if UNKNOWN_NODE_NAME not in name]
+        assert self._clock_claim is not None
+        claimants = list(self._clock_claim.heard)
+        heard = self._clock_heard or claimants
+        named = sorted({name for name in others if UNKNOWN_NODE_NAME not in name} | set(claimants))
         waited_s = time.monotonic() - self._clock_watch_since_s
         if not heard and not others and waited_s < LONE_CHECK_S and self._alone_in_the_graph():
             return  # checked again in CLOCK_CHECK_S
@@ -598,11 +612,18 @@ class SimulatorNode(Node):
         if heard:
             self.get_logger().error(
                 f"another node already publishes {GRAPH_CLOCK_TOPIC} ({', '.join(named) or 'unknown'}): a "
-                "graph has one simulated time, so this simulator does not start. Fly several vehicles in one "
-                "simulator node (parameter vehicles), or give each simulator a ROS_DOMAIN_ID of its own"
+                f"graph has one simulated time, so this simulator does not start. {ONE_CLOCK_ADVICE}"
             )
             raise SystemExit(2)
         self._start()
+
+    def _yield_the_clock(self, claimant: str, earlier_by_s: float) -> None:
+        """Another node claimed the clock before this one (nodes/clock.py ClockClaim): stop, status 2."""
+        self.get_logger().error(
+            f"{claimant} claimed {GRAPH_CLOCK_TOPIC} {earlier_by_s:.2f} s before this simulator (discovery "
+            f"found it only now): a graph has one simulated time, so this simulator stops. {ONE_CLOCK_ADVICE}"
+        )
+        raise SystemExit(2)
 
     # ------------------------------------------------------------------ inputs
 
