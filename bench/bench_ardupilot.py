@@ -151,18 +151,18 @@ def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) ->
         node.send_signal(2)
         node.wait(30)
     text = log_path.read_text()
-    match = re.search(r"frame timing: (.*); simulated .*?, (\d+) frames missed, (\d+) repeated", text)
-    if match is None:
+    timing = re.search(r"frame timing: (.*)", text)
+    frames = re.search(r"ardupilot: \d+ frames in .*, (\d+) missed, (\d+) repeated", text)
+    if timing is None or frames is None:
         raise RuntimeError(f"no timing in the node's log:\n{text[-3000:]}")
-    timing = {
-        key: float(value) for key, value in (item.rsplit(" ", 1) for item in match.group(1).split(", "))
-    }
+    items = (item.rsplit(" ", 1) for item in timing.group(1).split(", "))
+    times = {key: float(value) for key, value in items}
     return {
         **flight,
-        **timing,
+        **times,
         "cpu_share": cpu_share,
-        "missed_frames": int(match.group(2)),
-        "repeated_frames": int(match.group(3)),
+        "missed_frames": int(frames.group(1)),
+        "repeated_frames": int(frames.group(2)),
     }
 
 

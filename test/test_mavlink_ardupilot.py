@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
@@ -24,6 +25,7 @@ from multirotor_ros.mavlink.bridge import (
 from multirotor_ros.mavlink.peers import ArduPilotLikePeer, HoverController
 from multirotor_ros.mavlink.physics import SimulatorPhysics
 from multirotor_ros.mavlink.vehicle import VehicleState
+from multirotor_ros.mavlink.wire import UdpEndpoint
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.integrator import Integrator
 
@@ -322,3 +324,68 @@ def test_deferred_work_is_done_even_while_input_keeps_waiting(quad):
         busy.close()
         feeder.close()
         bridge.close()
+
+
+def test_after_a_quick_turn_the_next_frame_is_polled_for_and_after_a_slow_one_it_is_not(quad):
+    airframe, channels = quad
+    budget_s = 0.01
+    config = BridgeConfig(
+        "ardupilot", ardupilot=ArduPilotConfig(port=0, busy_wait_s=budget_s), ground_station=None
+    )
+    outputs = BridgeOutputs(lambda s, t: None, lambda state: None, lambda sp: None)
+    bridge = MavlinkBridge(config, channels, SimulatorPhysics.for_airframe(airframe), outputs)
+    session = bridge.ardupilot
+    assert session is not None
+    sitl = raw_socket()
+
+    def send(frame: int) -> None:
+        packet = encode_servo_packet(FRAME_RATE_HZ, frame, [1000] * 16)
+        sitl.sendto(packet, ("127.0.0.1", bridge.flight_stack_port))
+
+    try:
+        send(1)
+        bridge.spin_once(0.5)
+        sitl.recvfrom(65536)
+        assert session.frames == 1  # SITL's turn not known yet: nothing polled, the selector sleeps
+
+        # SITL's last turn was short: the frame it sends while the bridge polls is answered in that poll.
+        session.last_turn_s = budget_s / 10
+        late_sender = threading.Timer(budget_s / 5, send, (2,))
+        late_sender.start()
+        session.wait_for_next_frame()
+        late_sender.join()
+        assert session.frames == 2
+        sitl.recvfrom(65536)
+
+        # A turn longer than the budget (SITL keeping real time): no polling, however soon the frame comes.
+        session.last_turn_s = 2 * budget_s
+        started = time.perf_counter()
+        session.wait_for_next_frame()
+        assert time.perf_counter() - started < budget_s / 2
+        assert session.frames == 2
+    finally:
+        sitl.close()
+        bridge.close()
+
+
+def test_polling_for_a_frame_handles_a_queued_one_and_gives_up_after_its_budget(quad):
+    received: list[bytes] = []
+    endpoint = UdpEndpoint("127.0.0.1", 0, lambda data, address: received.append(data))
+    sender = raw_socket()
+    try:
+        started = time.perf_counter()
+        assert not endpoint.wait_briefly(0.002)
+        assert time.perf_counter() - started >= 0.002
+        sender.sendto(b"frame", ("127.0.0.1", endpoint.port))
+        time.sleep(0.01)
+        assert endpoint.wait_briefly(0.002)
+        assert received == [b"frame"]
+    finally:
+        sender.close()
+        endpoint.close()
+
+
+@pytest.mark.parametrize("busy_wait_s", [-0.001, 0.02, float("nan")])
+def test_a_busy_wait_outside_0_to_10_ms_is_refused(busy_wait_s):
+    with pytest.raises(ValueError, match="busy wait"):
+        ArduPilotConfig(busy_wait_s=busy_wait_s)

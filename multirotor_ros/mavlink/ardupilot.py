@@ -143,6 +143,13 @@ class ArduPilotConfig:
     port: int = DEFAULT_PORT
     peer_timeout_s: float = 2.0  # [s] silence after which another address may take over
     measure_timing: bool = False  # keep FrameTimes (benchmarks: one entry per frame, never dropped)
+    # [s] after an answer, poll for the next frame this long without sleeping, when SITL's last turn was
+    # no longer (ArduPilotSession.wait_for_next_frame); 0 = always sleep in the selector.
+    busy_wait_s: float = 0.0003
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.busy_wait_s) and 0.0 <= self.busy_wait_s <= 0.01):
+            raise ValueError(f"busy wait {self.busy_wait_s} s outside 0..0.01 s")
 
 
 class ArduPilotSession:
@@ -176,6 +183,9 @@ class ArduPilotSession:
         self.times = FrameTimes() if config.measure_timing else None
         self._last_reply = b""
         self._last_reply_t_s = -math.inf
+        # SITL's last turn (our answer out to its next frame in) [s], and when the last answer went out.
+        self.last_turn_s = math.inf
+        self._answered_at_s: float | None = None
         self._awaiting_state = False
         # Frame times: base_ns + frames_since_base / rate_hz (see the module docstring).
         self._rate_hz = 0
@@ -209,6 +219,9 @@ class ArduPilotSession:
         self._on_packet(packet)
 
     def _on_packet(self, packet: ServoPacket) -> None:
+        if self._answered_at_s is not None:
+            self.last_turn_s = time.perf_counter() - self._answered_at_s
+            self._answered_at_s = None
         last = self.last_frame
         if last is not None and packet.frame_count == last:
             self.repeated_frames += 1
@@ -269,7 +282,20 @@ class ArduPilotSession:
         if self.times is not None:
             # Taken as the answer leaves: SITL may answer it before sendto returns to us.
             self.times.frame(self.endpoint.arrival_ns, time.time_ns())
+        self._answered_at_s = time.perf_counter()
         self.endpoint.send(data, self.peer)
+
+    def wait_for_next_frame(self) -> None:
+        """After an answer, poll up to ``busy_wait_s`` for SITL's next frame if its last turn was as short.
+
+        In lockstep at speed SITL's turn is about 0.07-0.1 ms, less than it takes this process to wake
+        from the selector's sleep; polling answers the next frame at once. SITL running slower (speedup 1:
+        it sleeps to keep real time) takes longer than the budget, and then nothing is polled: no core is
+        burnt waiting.
+        """
+        budget_s = self.config.busy_wait_s
+        if self._answered_at_s is not None and self.last_turn_s <= budget_s:
+            self.endpoint.wait_briefly(budget_s - (time.perf_counter() - self._answered_at_s))
 
     def close(self) -> None:
         """Close the socket."""

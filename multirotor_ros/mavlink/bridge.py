@@ -232,6 +232,8 @@ class MavlinkBridge:
         deferred = self._deferred
         while deferred and (len(deferred) > MAX_DEFERRED or not self._selector.select(0)):
             self._guarded(deferred.popleft(), default=None)
+        if self.ardupilot is not None:
+            self._guarded(self.ardupilot.wait_for_next_frame, default=None)
 
     def _guarded(self, work: Callable[..., Any], *args: Any, default: Any) -> Any:
         try:

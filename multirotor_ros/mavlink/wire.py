@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import socket
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -314,18 +315,36 @@ class UdpEndpoint:
     def _read(self) -> None:
         # Drain what is queued: a burst of datagrams costs one wake-up.
         for _ in range(64):
-            try:
-                if self.arrival_times:
-                    data, ancillary, _, address = self.socket.recvmsg(65536, _TIMESTAMP_SPACE)
-                    self.arrival_ns = _arrival_ns(ancillary)
-                else:
-                    data, address = self.socket.recvfrom(65536)
-            except (BlockingIOError, InterruptedError):
+            if not self._receive_one():
                 return
-            except OSError:
-                # e.g. ECONNREFUSED reported for an earlier send to a closed port: not input, skip it.
-                continue
-            self.on_datagram(data, address)
+
+    def _receive_one(self) -> bool:
+        """Handle what is queued first (a datagram, or an error to skip); False when nothing is."""
+        try:
+            if self.arrival_times:
+                data, ancillary, _, address = self.socket.recvmsg(65536, _TIMESTAMP_SPACE)
+                self.arrival_ns = _arrival_ns(ancillary)
+            else:
+                data, address = self.socket.recvfrom(65536)
+        except (BlockingIOError, InterruptedError):
+            return False
+        except OSError:
+            # e.g. ECONNREFUSED reported for an earlier send to a closed port: not input, skip it.
+            return True
+        self.on_datagram(data, address)
+        return True
+
+    def wait_briefly(self, seconds: float) -> bool:
+        """Poll for a datagram for up to ``seconds`` without sleeping; handle it and return True if one came.
+
+        For a peer known to answer within microseconds (a lockstep flight stack): waking from the
+        selector's sleep costs more than the peer's own turn.
+        """
+        deadline = time.perf_counter() + seconds
+        while not self._receive_one():
+            if time.perf_counter() > deadline:
+                return False
+        return True
 
     def send(self, data: bytes, address: tuple[str, int]) -> bool:
         """Send one datagram; False when the system refuses (nobody listening is not an error for UDP)."""

@@ -583,7 +583,9 @@ class VehicleSimulator:
         step ``self.x`` with an integrator of their own and ``self.crashes`` (the MAVLink bridge's
         physics, whose frames set the step).
         """
-        readings = []
+        readings: list[Reading] = []
+        if self.crashes.crash_step.max() < 0:
+            return readings  # the usual case, without flatnonzero's cost (the bridge asks every frame)
         for k in np.flatnonzero(self.crashes.crash_step >= 0).tolist():
             self.commands_rad_s[k] = 0.0
             self._deadline_stale = True
