@@ -61,6 +61,7 @@ SERVO_MAGIC_32 = 29569
 SERVO_FORMAT_16 = struct.Struct("<HHI16H")
 SERVO_FORMAT_32 = struct.Struct("<HHI32H")
 MAX_FRAME_RATE_HZ = 10000
+MAX_BUSY_WAIT_S = 0.01  # [s] longest poll for SITL's next frame (ArduPilotConfig.busy_wait_s)
 # Packet size -> its magic and layout (magic, frame rate, frame count, then the pulses).
 _SERVO_LAYOUTS = {
     SERVO_FORMAT_16.size: (SERVO_MAGIC_16, SERVO_FORMAT_16),
@@ -148,8 +149,8 @@ class ArduPilotConfig:
     busy_wait_s: float = 0.0003
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.busy_wait_s) and 0.0 <= self.busy_wait_s <= 0.01):
-            raise ValueError(f"busy wait {self.busy_wait_s} s outside 0..0.01 s")
+        if not (math.isfinite(self.busy_wait_s) and 0.0 <= self.busy_wait_s <= MAX_BUSY_WAIT_S):
+            raise ValueError(f"busy wait {self.busy_wait_s} s outside 0..{MAX_BUSY_WAIT_S:g} s")
 
 
 class ArduPilotSession:

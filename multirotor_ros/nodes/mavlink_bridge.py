@@ -49,7 +49,7 @@ from std_msgs.msg import Bool
 
 from multirotor_ros.mavlink.actuators import RotorChannels
 from multirotor_ros.mavlink.ardupilot import DEFAULT_PORT as ARDUPILOT_PORT
-from multirotor_ros.mavlink.ardupilot import ArduPilotConfig
+from multirotor_ros.mavlink.ardupilot import MAX_BUSY_WAIT_S, ArduPilotConfig
 from multirotor_ros.mavlink.bridge import (
     FLIGHT_STACKS,
     BridgeConfig,
@@ -183,7 +183,7 @@ PARAMETERS = (
         "(0: always sleep until it comes)",
         "s",
         0.0,
-        0.01,
+        MAX_BUSY_WAIT_S,
         read_only=True,
     ),
     NodeParameter(

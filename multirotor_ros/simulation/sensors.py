@@ -181,7 +181,8 @@ def _imu_lanes(
     """One IMU sample per vehicle k (Imu.sample): the biases walk (in place), then the readings.
 
     ``bias_steps`` and ``sample_stds``: (accelerometer, gyro) bias walk step and white-noise sigma. The
-    specific force is R(q)^T (a + g e_z) (R as rotation.quat_to_matrix) plus bias and noise; ``angles``
+    specific force (what an accelerometer measures, R(q)^T (a - g_vec) with g_vec = (0, 0, -g); R as
+    rotation.quat_to_matrix) gets bias and noise added; ``angles``
     the orientation noise (ZYX, zero when ``orientation_std`` is 0). One compiled pass instead of some
     fifteen numpy calls on 3-vectors: the MAVLink bridge samples the IMU at every flight-stack frame.
     """
@@ -283,7 +284,6 @@ class Imu:
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
         walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
-        # Specific force: what an accelerometer measures, R^T (a - g_vec) with g_vec = (0, 0, -g).
         f_B, w_B, angles = np.empty_like(a_WB_W), np.empty_like(a_WB_W), np.empty_like(a_WB_W)
         # New bias arrays each sample: a reading handed out earlier keeps the biases of its time.
         self.accel_bias, self.gyro_bias = self.accel_bias.copy(), self.gyro_bias.copy()
