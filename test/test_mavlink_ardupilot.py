@@ -352,17 +352,31 @@ def test_after_a_quick_turn_the_next_frame_is_polled_for_and_after_a_slow_one_it
         session.last_turn_s = budget_s / 10
         late_sender = threading.Timer(budget_s / 5, send, (2,))
         late_sender.start()
-        session.wait_for_next_frame()
+        assert session.wait_for_next_frame()
         late_sender.join()
         assert session.frames == 2
+        sitl.recvfrom(65536)
+
+        # The loop goes on polling: its selector only looks (timeout 0) while the next frame is expected,
+        # and the frame that comes then is answered by the poll, not after a sleep in the selector.
+        timeouts: list[float | None] = []
+        select = bridge._selector.select
+        bridge._selector.select = lambda timeout=None: (timeouts.append(timeout), select(timeout))[1]
+        late_sender = threading.Timer(budget_s / 5, send, (3,))
+        late_sender.start()
+        bridge.spin_once(0.5)
+        late_sender.join()
+        bridge._selector.select = select
+        assert session.frames == 3
+        assert timeouts and all(timeout == 0.0 for timeout in timeouts)
         sitl.recvfrom(65536)
 
         # A turn longer than the budget (SITL keeping real time): no polling, however soon the frame comes.
         session.last_turn_s = 2 * budget_s
         started = time.perf_counter()
-        session.wait_for_next_frame()
+        assert not session.wait_for_next_frame()
         assert time.perf_counter() - started < budget_s / 2
-        assert session.frames == 2
+        assert session.frames == 3
     finally:
         sitl.close()
         bridge.close()

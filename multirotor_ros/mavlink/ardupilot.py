@@ -115,13 +115,11 @@ _LINE = (
 def state_json_line(state: VehicleState) -> bytes:
     """The answer line for one state (see the module docstring)."""
     # ned_view's numbers as plain floats, without its arrays: p 0:3, v 3:6, q 6:10, accel 13:16, gyro 16:19.
-    out = ned_axes(state)
-    if out is not None:
-        n = out.tolist()
-        if math.isfinite(state.t_s + sum(n[0:10]) + sum(n[13:19])):
-            if n[6] < 0.0:
-                n[6:10] = [-value for value in n[6:10]]  # the same attitude, w >= 0 (ned_view)
-            return (_LINE % (state.t_s, *n[16:19], *n[13:16], *n[0:10])).encode("ascii")
+    n = ned_axes(state).tolist()
+    if math.isfinite(state.t_s + sum(n[0:10]) + sum(n[13:19])):
+        if n[6] < 0.0:
+            n[6:10] = [-value for value in n[6:10]]  # the same attitude, w >= 0 (ned_view)
+        return (_LINE % (state.t_s, *n[16:19], *n[13:16], *n[0:10])).encode("ascii")
     return _json_line(ned_view(state))  # NaN or beyond a float's range: spelt as JSON spells them
 
 
@@ -286,17 +284,24 @@ class ArduPilotSession:
         self._answered_at_s = time.perf_counter()
         self.endpoint.send(data, self.peer)
 
-    def wait_for_next_frame(self) -> None:
-        """After an answer, poll up to ``busy_wait_s`` for SITL's next frame if its last turn was as short.
+    def busy_wait_left_s(self) -> float:
+        """How much longer to poll for SITL's next frame instead of sleeping [s]; 0 = sleep.
 
         In lockstep at speed SITL's turn is about 0.07-0.1 ms, less than it takes this process to wake
-        from the selector's sleep; polling answers the next frame at once. SITL running slower (speedup 1:
-        it sleeps to keep real time) takes longer than the budget, and then nothing is polled: no core is
+        from the selector's sleep; polling answers the next frame at once. After an answer the poll lasts
+        up to ``busy_wait_s`` when SITL's last turn was no longer. SITL running slower (speedup 1: it
+        sleeps to keep real time) takes longer than the budget, and then nothing is polled: no core is
         burnt waiting.
         """
         budget_s = self.config.busy_wait_s
-        if self._answered_at_s is not None and self.last_turn_s <= budget_s:
-            self.endpoint.wait_briefly(budget_s - (time.perf_counter() - self._answered_at_s))
+        if self._answered_at_s is None or self.last_turn_s > budget_s:
+            return 0.0
+        return max(budget_s - (time.perf_counter() - self._answered_at_s), 0.0)
+
+    def wait_for_next_frame(self) -> bool:
+        """Poll for SITL's next frame for :meth:`busy_wait_left_s`; True if one came and was answered."""
+        left_s = self.busy_wait_left_s()
+        return left_s > 0.0 and self.endpoint.wait_briefly(left_s)
 
     def close(self) -> None:
         """Close the socket."""

@@ -227,6 +227,9 @@ class MavlinkBridge:
                 next_due, self._guarded(self.gcs.poll, now, self.simulation.latest, default=now + max_wait_s)
             )
         timeout = min(max(next_due - self.clock(), 0.0), max_wait_s)
+        if self.ardupilot is not None and self.ardupilot.busy_wait_left_s() > 0.0:
+            # SITL's next frame is expected within the busy wait: look without sleeping, then poll below.
+            timeout = 0.0
         for key, _ in self._selector.select(timeout):
             self._guarded(key.data, default=None)
         deferred = self._deferred

@@ -88,25 +88,24 @@ def _axis_changes() -> FloatArray:
 _AXIS_CHANGES = _axis_changes()
 
 
-def ned_axes(state: VehicleState) -> FloatArray | None:
-    """A :class:`NedView`'s 19 numbers in one array (None when the state is not all finite).
+def ned_axes(state: VehicleState) -> FloatArray:
+    """A :class:`NedView`'s 19 numbers in one array, in :func:`_axis_changes`' order.
 
-    In :func:`_axis_changes`' order, the attitude's sign not yet made w >= 0: for a caller that wants
-    plain numbers (ArduPilot's answer line) without the view's arrays. :func:`ned_view` converts a
-    state that is not all finite elementwise.
+    The attitude's sign not yet made w >= 0: for a caller that wants plain numbers (ArduPilot's answer
+    line) without the view's arrays. Every row mixes in all of the state through the product (0 x inf
+    is NaN), so one number not finite in the state makes every number here NaN: test any of them.
+    :func:`ned_view` converts such a state elementwise.
     """
     inside = np.concatenate(
         (state.p_WB_W, state.v_WB_W, state.q_WB, state.w_WB_B, state.imu_specific_force_B, state.imu_w_WB_B)
     )
-    if not np.isfinite(inside).all():
-        return None  # the product would spread a NaN or an infinity to every row
     return _AXIS_CHANGES.dot(inside)
 
 
 def ned_view(state: VehicleState) -> NedView:
     """The state's NED/FRD quantities."""
     out = ned_axes(state)
-    if out is None:
+    if not np.isfinite(out).all():
         return _ned_view_elementwise(state)
     q_NED_FRD = out[6:10] if out[6] >= 0.0 else -out[6:10]  # the same attitude, w >= 0 as frames.py gives
     return NedView(state.t_s, out[0:3], out[3:6], q_NED_FRD, out[10:13], out[13:16], out[16:19])

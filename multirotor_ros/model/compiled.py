@@ -784,7 +784,7 @@ class CompiledStepper:
                 else (crashes.crashed, crashes.touchdown_speed_m_s, crashes.crash_step)
             ),
         )
-        if np.any(failed >= 0):
+        if failed.max() >= 0:  # -1 = finite to the end; max, not np.any: a third of the cost per call
             vehicle = int(np.argmax(failed >= 0))
             when = t + (failed[vehicle] + 1) * dt
             raise FloatingPointError(f"the state of vehicle {vehicle} became non-finite at t = {when:.6f} s")

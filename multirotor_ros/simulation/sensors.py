@@ -262,6 +262,10 @@ class Imu:
         self.accel_bias: FloatArray = config.accel_bias_initial_m_s2 * z[:, 0:3]
         self.gyro_bias: FloatArray = config.gyro_bias_initial_rad_s * z[:, 3:6]
         self._last_t: float | None = None
+        # The bias-walk step and white-noise sigmas of the last sample's config and interval.
+        self._scaled_config: SensorConfig | None = None
+        self._scaled_dt = math.nan
+        self._scales: tuple[FloatArray, FloatArray] = (np.zeros(2), np.zeros(2))
 
     @staticmethod
     def draws(config: SensorConfig) -> int:
@@ -283,8 +287,14 @@ class Imu:
         c = self.config
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
-        walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
-        f_B, w_B, angles = np.empty_like(a_WB_W), np.empty_like(a_WB_W), np.empty_like(a_WB_W)
+        if c is not self._scaled_config or dt != self._scaled_dt:
+            walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
+            self._scales = (
+                np.array([c.accel_bias_stability_m_s2 * walk, c.gyro_bias_stability_rad_s * walk]),
+                np.array([c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s]),
+            )
+            self._scaled_config, self._scaled_dt = c, dt  # a fixed-rate IMU keeps its scales
+        f_B, w_B, angles = np.empty((3, *a_WB_W.shape))
         # New bias arrays each sample: a reading handed out earlier keeps the biases of its time.
         self.accel_bias, self.gyro_bias = self.accel_bias.copy(), self.gyro_bias.copy()
         _kernel(_imu_lanes)(
@@ -293,8 +303,7 @@ class Imu:
             w_WB_B,
             z,
             self.gravity_m_s2,
-            np.array([c.accel_bias_stability_m_s2 * walk, c.gyro_bias_stability_rad_s * walk]),
-            np.array([c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s]),
+            *self._scales,
             c.orientation_noise_rad,
             self.accel_bias,
             self.gyro_bias,
@@ -303,7 +312,8 @@ class Imu:
             angles,
         )
         q = _turned(q_WB, angles)
-        return [ImuReading(*reading) for reading in zip(q, f_B, w_B, strict=True)]
+        # Rows by index: iterating arrays row by row (zip) costs three times as much for one vehicle.
+        return [ImuReading(q[k], f_B[k], w_B[k]) for k in range(len(q))]
 
 
 def range_readings(
