@@ -131,3 +131,27 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
         for process in [*controllers, simulator]:
             process.stop()
         probe.close()
+
+
+@pytest.mark.ros
+def test_a_fleet_controller_moved_by_a_process_wide_namespace_keeps_each_controller_under_its_vehicle(
+    tmp_path,
+) -> None:
+    """``-r __ns:=/team``, what ros2 launch gives a namespaced process, moves the fleet, not onto one name."""
+    probe = RosProbe()
+    controllers = NodeProcess(
+        "fleet_controller",
+        tmp_path / "fleet_controller.log",
+        namespace="/team",
+        parameters={"vehicles": ["uav1", "uav2"]},
+    )
+    try:
+        for name in ("/team/fleet_controller", "/team/uav1/controller", "/team/uav2/controller"):
+            probe.wait_for_node(name, timeout=STARTUP_TIMEOUT_S)
+        said = "2 controllers: /team/uav1/controller, /team/uav2/controller"
+        assert said in controllers.wait_for_log(said, STARTUP_TIMEOUT_S), controllers.log_text()
+        (outcome,) = probe.set_parameters("/team/uav2/controller", {"k_px": -1.0}).values()
+        assert not outcome.successful and "k_px" in outcome.reason, outcome.reason
+    finally:
+        controllers.stop()
+        probe.close()

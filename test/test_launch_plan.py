@@ -66,6 +66,10 @@ def _declared(plan: NodePlan) -> dict[str, NodeParameter]:
         rows += [AIRFRAME_ROW, NodeParameter("vehicles", "", "checked by parse_vehicles")]
     elif plan.executable == "controller":
         rows = controller_parameters(airframe_gains(airframe).as_dict()) + [AIRFRAME_ROW]
+    elif plan.executable == "fleet_controller":
+        # Its vehicles, and what a launch's parameters give every node of the process: each controller's.
+        rows = controller_parameters(airframe_gains(airframe).as_dict()) + [AIRFRAME_ROW]
+        rows += [NodeParameter("vehicles", "", "checked by parse_vehicles")]
     elif plan.executable == "identifier":
         rows = identifier_parameters()
     elif plan.executable == "mavlink_bridge":
@@ -207,10 +211,15 @@ def test_a_fleet_is_one_simulator_and_each_vehicles_nodes_in_its_namespace() -> 
     assert simulator.parameters["vehicles"] == ["uav1 0 0 0", "uav2 5 0 0", "uav3 10 0 0"]
     assert simulator.parameters["uav2.fault_motor"] == 1
     assert "fault_motor" not in simulator.parameters
+    # The controllers are nodes of one process, /uavK/controller each (nodes/fleet_controller.py).
+    (controllers,) = _by_executable(nodes, "fleet_controller")
+    assert controllers.namespace == "/"
+    assert controllers.parameters["vehicles"] == ["uav1", "uav2", "uav3"]
+    assert controllers.parameters["use_sim_time"] is True
+    assert not _by_executable(nodes, "controller")
     for k in (1, 2, 3):
         namespace = f"/uav{k}"
         assert {n.executable for n in nodes if n.namespace == namespace} == {
-            "controller",
             "identifier",
             "mission",
             "visualizer",
@@ -226,6 +235,7 @@ def test_a_fleet_under_a_namespace_keeps_topics_and_frames_together() -> None:
     nodes = FLEET.nodes({"vehicles": "2", "namespace": "team"})
     simulator = _one(nodes, "simulator", "/team")
     assert simulator.parameters["frame_prefix"] == "team/"
+    assert _one(nodes, "fleet_controller", "/team").parameters["vehicles"] == ["uav1", "uav2"]
     assert _one(nodes, "mission", "/team/uav2").parameters["frame_id"] == "team/uav2/odom"
     assert frame_prefix("/team/uav2") == "team/uav2/"
 

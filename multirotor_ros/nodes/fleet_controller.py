@@ -8,7 +8,9 @@ ROS 2 composes nodes in a component container, which rclpy does not offer: a con
 its interpreter, its DDS participant and its own ``/clock`` traffic, and with one process per vehicle a
 2-core machine kept the control periods of 4 vehicles on time only 23 % of the time
 (bench/bench_fleet_ros.py). Parameters given with ``-p`` apply to every controller; a parameters file
-sets one vehicle's under ``/NAME/controller``. Example::
+sets one vehicle's under ``/NAME/controller``. Under ``-r __ns:=/NS`` for the whole process (as ``ros2
+launch`` starts a namespaced node) this node is ``/NS/fleet_controller`` and each controller
+``/NS/NAME/controller``. fleet.launch.py starts the controllers so. Example::
 
     ros2 run multirotor_ros fleet_controller --ros-args -p vehicles:="['uav1', 'uav2']" -p use_sim_time:=true
 """
@@ -52,15 +54,13 @@ class FleetControllerNode(Node):
         self.members: list[Node] = []
         try:
             for vehicle in vehicles:
-                member = ControllerNode(**kwargs, namespace=f"{namespace}/{vehicle.name}")
+                # The member's own remap of its namespace: a node's local arguments come before the
+                # process's, so a process-wide -r __ns:=/NS (what ros2 launch gives a namespaced
+                # process) moves this node to /NS and each member to /NS/NAME, not all onto /NS.
+                own = f"{namespace}/{vehicle.name}"
+                remap = ["--ros-args", "-r", f"__ns:={own}"]
+                member = ControllerNode(**kwargs, namespace=own, cli_args=remap)
                 self.members.append(member)
-                if member.get_namespace() != f"{namespace}/{vehicle.name}":
-                    # A namespace remapped for the whole process (-r __ns:=...) wins over the members' own.
-                    raise ValueError(
-                        f"controller of {vehicle.name} is in {member.get_namespace()}, not "
-                        f"{namespace}/{vehicle.name}: remap this node's namespace with -r "
-                        "fleet_controller:__ns:=/NS, not -r __ns:=/NS (that moves every node of the process)"
-                    )
         except Exception:
             for built in self.members:
                 built.destroy_node()
