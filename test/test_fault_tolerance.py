@@ -484,3 +484,18 @@ def test_a_healthy_rotor_wrongly_reported_at_half_thrust_does_not_destabilise_th
     assert distance[after].max() < 0.3
     assert np.ptp(distance[t >= 10.0]) < 0.01
     assert np.abs(attitude[after, :2]).max() < 0.05
+
+
+def test_a_rotor_set_that_cannot_balance_says_what_it_delivers() -> None:
+    """Hexarotor rotors 1, 2 lost, 6 at half: thrust alone needs a rotor below zero (found by hypothesis)."""
+    allocator = Allocator.for_airframe(load_airframe("hexarotor_f550"))
+    effectiveness = np.array([0.0, 0.0, 1.0, 1.0, 1.0, 0.5])
+    result = allocator.allocate(1.0, (0.0, 0.0, 0.0), effectiveness)
+    delivered = _delivered(allocator, result.omega_rad_s, effectiveness)
+    assert result.saturated and result.roll_pitch_fraction == 0.0
+    assert result.thrust_N == pytest.approx(delivered[0], rel=1e-12)
+    assert np.linalg.norm(delivered[1:3]) > 0.01  # the torque the vehicle gets instead of none
+    # Balanced sets keep reporting what they deliver: the X8 that lost a coaxial pair hovers.
+    x8, hover = _hover("x8_octorotor")
+    result = x8.allocate(hover, (0.0, 0.0, 0.0), _without(8, 1, 2))
+    assert not result.saturated and result.thrust_N == hover

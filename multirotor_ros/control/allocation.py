@@ -29,7 +29,9 @@ one direction only. The yaw step then reports yaw_fraction < 1 and the vehicle's
 its position holds. An X8 that lost one rotor, or two of different coaxial pairs, keeps everything.
 A set of rotors that cannot balance roll and pitch with every rotor at or above its minimum (a
 quadrotor with a rotor lost, an X8 with a whole arm lost) cannot hover; the allocation stays finite and
-within the limits, but cannot hold the attitude.
+within the limits, but cannot hold the attitude, and says so: whenever its collective would need a
+rotor below zero thrust, the torque delivered is not the one wanted (roll_pitch_fraction 0) and the
+thrust reported is the one the rotors give.
 
 Cost: the directions depend on e, so they are computed once per effectiveness vector (two 4xN
 pseudo-inverses) and cached, the rank of each rotor set once; allocate itself stays a handful of
@@ -95,6 +97,8 @@ class _Plan:
     collective_yaw: float  # yaw torque [N m] per newton of collective thrust
     roll_pitch_yaw: FloatArray  # (2,) yaw torque per N m of roll and pitch torque
     pair_room: FloatArray  # (n, n) r_ij = hi/a_j - lo/a_i of step 1 in allocate()
+    balanced: bool  # whether thrust alone needs no rotor below zero (see the module docstring)
+    lift: FloatArray  # (n,) thrust [N] per omega^2 of each rotor allocated
 
 
 class Allocator:
@@ -175,6 +179,10 @@ class Allocator:
         else:
             omega_sq = np.full(self.n_rotors, self.low)
             omega_sq[plan.alive] = np.clip(base, self.low, self.high)
+        if not plan.balanced:
+            # The collective direction was lifted off a negative rotor: what the rotors give is not c.
+            delivered = float(plan.lift @ omega_sq[plan.alive])
+            return AllocationResult(np.sqrt(omega_sq), delivered, 0.0, s)
         return AllocationResult(np.sqrt(omega_sq), c, k, s)
 
     def _plan_for(self, effectiveness: ArrayLike) -> _Plan:
@@ -213,6 +221,9 @@ class Allocator:
         # A rotor the collective does not lift cannot be balanced with the others at hover (module
         # docstring): a small positive floor keeps the interval computations finite for such sets.
         floor = 1e-9 * float(collective.max(initial=0.0))
+        # Exactly zero is balanced (the X8 that lost a coaxial pair: its partners' diagonal idles);
+        # materially below zero, the floor lifts that rotor and the collective tilts the vehicle.
+        balanced = bool(collective.min(initial=0.0) >= -1e-6 * collective.max(initial=0.0))
         collective = np.maximum(collective, max(floor, np.finfo(float).tiny))
         return _Plan(
             alive=alive,
@@ -222,6 +233,8 @@ class Allocator:
             collective_yaw=float(matrix[3] @ collective),
             roll_pitch_yaw=matrix[3] @ directions[:, 1:3],
             pair_room=self.high / collective[None, :] - self.low / collective[:, None],
+            balanced=balanced,
+            lift=matrix[0],
         )
 
     def _rank(self, alive: IndexArray, matrix: FloatArray) -> int:
