@@ -1,7 +1,7 @@
 """Lockstep against the real ArduCopter: the bridge's answer per frame beside SITL's own, and the speed.
 
     .venv/bin/python bench/bench_ardupilot.py [--speedups 1,5,10] [--rate 1200] [--airframe quad_x]
-                                              [--via library,node] [--rounds 1] [--json FILE]
+                                              [--via library,node,node-heard] [--rounds 1] [--json FILE]
 
 ArduCopter SITL (shared/flight_stacks/ardupilot, see SOURCE.md there) flies the test mission of
 :mod:`multirotor_ros.mavlink.arducopter` (pre-arm checks and EKF, GUIDED, arm, 5 m, hover, 10 m north
@@ -10,9 +10,12 @@ turning east, LAND, disarm) against the bridge, once per requested speedup and w
 - ``library``: :class:`~multirotor_ros.mavlink.bridge.MavlinkBridge` with its own physics, its loop in
   this process's main thread, no ROS; the ground station runs in a process of its own, so that nothing
   else shares the bridge's interpreter;
-- ``node``: the ``mavlink_bridge`` node as ``multirotor node`` starts it (publishing ``odom``, ``imu``,
-  ``motor_speeds``, ``motor_speed_cmd`` and ``/clock`` to a ROS graph of its own, ROS_DOMAIN_ID random,
-  localhost only); the ground station in this process.
+- ``node``: the ``mavlink_bridge`` node as ``multirotor node`` starts it (``odom``, ``imu``,
+  ``motor_speeds``, ``motor_speed_cmd`` and ``/clock`` in a ROS graph of its own, ROS_DOMAIN_ID random,
+  localhost only) with nobody subscribing, so that it publishes nothing (nodes/listeners.py); the ground
+  station in this process;
+- ``node-heard``: the same with a process subscribing to those five topics (what an identifier, a
+  recorder or ``use_sim_time`` nodes do), which prints how many messages of each it got.
 
 Per run: the real-time factor achieved (ArduCopter's simulated seconds per wall second, from connecting
 to disarming) against the requested speedup; the bridge's answer time per frame (the servo packet's
@@ -119,7 +122,46 @@ def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path)
     }
 
 
-def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
+LISTENED_TOPICS = ("odom", "imu", "motor_speeds", "motor_speed_cmd", "/clock")
+
+
+def listen(seconds: float) -> dict[str, int]:
+    """Subscribe to the bridge's state topics until SIGINT or ``seconds``; messages received per topic."""
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import Imu, JointState
+
+    from multirotor_ros.nodes.clock import CLOCK_QOS
+
+    rclpy.init()
+    node = rclpy.create_node("bench_listener")
+    counts = dict.fromkeys(LISTENED_TOPICS, 0)
+    types = {"odom": (Odometry, 10), "imu": (Imu, qos_profile_sensor_data), "/clock": (Clock, CLOCK_QOS)}
+
+    def count(topic: str):
+        return lambda _message: counts.__setitem__(topic, counts[topic] + 1)
+
+    for topic in LISTENED_TOPICS:
+        kind, qos = types.get(topic, (JointState, 10))
+        node.create_subscription(kind, topic, count(topic), qos)
+    deadline = time.monotonic() + seconds
+    try:
+        while time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except KeyboardInterrupt:
+        pass
+    return counts
+
+
+def run_node_heard(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
+    return run_node(airframe_name, speedup, rate_hz, workdir, heard=True)
+
+
+def run_node(
+    airframe_name: str, speedup: float, rate_hz: int, workdir: Path, heard: bool = False
+) -> dict[str, float]:
     port = _free_udp_port()
     environment = dict(
         os.environ, ROS_DOMAIN_ID=str(random.randint(1, 200)), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"
@@ -141,6 +183,16 @@ def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) ->
             if node.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"the node did not start:\n{log_path.read_text()}")
             time.sleep(0.1)
+        listener = (
+            subprocess.Popen(
+                [sys.executable, __file__, "--role", "listener"],
+                env=environment,
+                stdout=subprocess.PIPE,
+                text=True,
+            )  # fmt: skip
+            if heard
+            else None
+        )
         sitl.start()
         cpu = _cpu_s(node.pid)
         started = time.monotonic()
@@ -150,6 +202,11 @@ def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) ->
         sitl.stop()
         node.send_signal(2)
         node.wait(30)
+        received = {}
+        if listener is not None:
+            listener.send_signal(2)
+            out, _ = listener.communicate(timeout=30)
+            received = json.loads(out.strip().splitlines()[-1])
     text = log_path.read_text()
     timing = re.search(r"frame timing: (.*)", text)
     frames = re.search(r"ardupilot: \d+ frames in .*, (\d+) missed, (\d+) repeated", text)
@@ -163,6 +220,7 @@ def run_node(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) ->
         "cpu_share": cpu_share,
         "missed_frames": int(frames.group(1)),
         "repeated_frames": int(frames.group(2)),
+        **{f"received {topic}": count for topic, count in received.items()},
     }
 
 
@@ -177,7 +235,7 @@ def _free_udp_port() -> int:
 def _line(via: str, speedup: float, rate_hz: int, run: dict[str, float]) -> str:
     factor = run["landed_s"] / run["wall_s"]
     return (
-        f"  {via:7s} speedup {speedup:4g}: {factor:5.2f}x real time ({run['frames']:.0f} frames at "
+        f"  {via:10s} speedup {speedup:4g}: {factor:5.2f}x real time ({run['frames']:.0f} frames at "
         f"{rate_hz} Hz, "
         f"{run['missed_frames']:.0f} missed, {run['repeated_frames']:.0f} repeated); answer p50/p95/p99 "
         f"{run['answer_p50_ms']:.3f}/{run['answer_p95_ms']:.3f}/{run['answer_p99_ms']:.3f} ms, SITL "
@@ -185,6 +243,7 @@ def _line(via: str, speedup: float, rate_hz: int, run: dict[str, float]) -> str:
         f"{run['flight_stack_p99_ms']:.3f} ms; "
         f"bridge CPU {100 * run['cpu_share']:.0f} % of a core; take-off to 5 m "
         f"{run['reached_s'] - run['armed_s']:.1f} s; load average {os.getloadavg()[0]:.1f}"
+        + "".join(f"; {key} {value:.0f}" for key, value in run.items() if key.startswith("received "))
     )
 
 
@@ -193,17 +252,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speedups", default="1,5,10", help="requested SITL speedups, comma separated")
     parser.add_argument("--rate", type=int, default=1200, help="SITL frame rate [Hz] (SIM_RATE_HZ)")
     parser.add_argument("--airframe", default="quad_x")
-    parser.add_argument("--via", default="library,node", help="library, node or both (comma separated)")
+    parser.add_argument(
+        "--via", default="library,node,node-heard", help="library, node, node-heard (comma separated)"
+    )
     parser.add_argument("--rounds", type=int, default=1, help="runs of each combination")
     parser.add_argument("--json", type=Path, help="also write the results here")
-    parser.add_argument("--role", choices=["ground-station"], help=argparse.SUPPRESS)
+    parser.add_argument("--role", choices=["ground-station", "listener"], help=argparse.SUPPRESS)
     parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.role == "ground-station":
         print(json.dumps(ground_station(args.port)), flush=True)
         return 0
+    if args.role == "listener":
+        print(json.dumps(listen(seconds=3600.0)), flush=True)
+        return 0
 
-    runners = {"library": run_library, "node": run_node}
+    runners = {"library": run_library, "node": run_node, "node-heard": run_node_heard}
     print(f"{args.airframe}, ArduCopter SITL at {args.rate} Hz, {os.cpu_count()} cores")
     results: list[dict[str, object]] = []
     for _ in range(args.rounds):

@@ -10,7 +10,6 @@ import math
 import socket
 import time
 from collections.abc import Iterator
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -119,7 +118,7 @@ def test_clamped_values_are_the_field_limits():
     )
     try:
         # The reproduction: 1e308 m and 1e39 m/s raised OverflowError in the encoder.
-        state = replace(STATE, p_WB_W=np.array([1e308, 0.0, 0.0]), v_WB_W=np.array([1e39, 0.0, 0.0]))
+        state = STATE._replace(p_WB_W=np.array([1e308, 0.0, 0.0]), v_WB_W=np.array([1e39, 0.0, 0.0]))
         parser = mavlink2.MAVLink(None)
         view = ned_view(state)
         local = parser.parse_buffer(link.codec.encode(link._build(32, state, view)[0]))[0]

@@ -11,17 +11,19 @@ message; :mod:`multirotor_ros.mavlink.bridge` documents when it owns one.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from multirotor_ros.model.rotation import FloatArray
 
 
-@dataclass(frozen=True)
-class VehicleState:
-    """One instant of the simulated vehicle."""
+class VehicleState(NamedTuple):
+    """One instant of the simulated vehicle.
+
+    A named tuple, immutable like a frozen dataclass: the bridge's own physics makes one per
+    flight-stack frame, and a frozen dataclass's ``__init__`` costs five times as much.
+    """
 
     t_s: float  # [s] simulated time
     p_WB_W: FloatArray  # [m] position, world ENU (origin = home)

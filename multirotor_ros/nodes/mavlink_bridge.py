@@ -11,7 +11,8 @@ parameters. Which side owns the physics, and why, is described in :mod:`multirot
   an odom message costs more than SITL's own frame), ``odom`` and ``motor_speed_cmd`` (at
   ``publish_rate_hz``), ``imu`` (readings the flight stack got, at the airframe's
   ``sensors.imu_rate_hz``), ``motor_speeds`` (the ESC rate of the airframe's sensors) and, with
-  ``publish_clock``, ``clock`` (with each odom). ``fault_motor`` and
+  ``publish_clock``, ``clock`` (with each odom). A topic nobody subscribes to is neither filled nor
+  published (:mod:`multirotor_ros.nodes.listeners`; ``crashed``, latched, always is). ``fault_motor`` and
   ``fault_effectiveness`` (settable at run time, as on the simulator node) inject a rotor fault into it.
   The ground and the crash latch are the simulator's: ``crashed`` (std_msgs/Bool, transient local) turns
   true at a crash, with one error line, and false again when the flight stack restarts the vehicle.
@@ -68,6 +69,7 @@ from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, euler_to_quat
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC
 from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.listeners import ListenerGate
 from multirotor_ros.nodes.messages import (
     LATCHED_QOS,
     imu_from_message,
@@ -347,6 +349,7 @@ class MavlinkBridgeNode(Node):
 
         qos = 10
         self.command_publisher = self.create_publisher(JointState, "motor_speed_cmd", qos)
+        self._command_heard = ListenerGate(self.command_publisher)
         self.setpoint_publisher = self.create_publisher(PoseStamped, "setpoint", qos)
         # Messages the bridge thread fills and publishes again and again (publish serialises at once):
         # a new Odometry costs six times its filling, and the internal physics publishes about 1,000
@@ -370,6 +373,13 @@ class MavlinkBridgeNode(Node):
             self.clock_publisher = (
                 self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if self.publish_clock else None
             )
+            # The volatile state topics, by reading kind: filled and published only while heard.
+            self._reading_heard = {
+                "odom": ListenerGate(self.odom_publisher),
+                "imu": ListenerGate(self.imu_publisher),
+                "motor_speeds": ListenerGate(self.speeds_publisher),
+            }
+            self._clock_heard = ListenerGate(self.clock_publisher) if self.clock_publisher else None
             # As the simulator node's: false from the start and after the flight stack restarts the vehicle.
             self.crashed_publisher = self.create_publisher(Bool, "crashed", LATCHED_QOS)
             self.crashed_publisher.publish(Bool(data=False))
@@ -464,6 +474,8 @@ class MavlinkBridgeNode(Node):
             if t_s < self._next_command_s:
                 return
             self._next_command_s = t_s + self._command_period_s
+        if not self._command_heard.heard():
+            return
         stamp = self._stamp(t_s)
         self.bridge.defer(
             lambda: self._publish(
@@ -487,8 +499,10 @@ class MavlinkBridgeNode(Node):
         imu_config = self.physics.imu_config
         # One deferred item per message: the flight stack's next frame may come between any two.
         for reading in self.physics.take_readings():
-            self.bridge.defer(partial(self._publish_reading, reading, imu_config))
-            if reading.kind == "odom" and self.clock_publisher is not None:
+            gate = self._reading_heard.get(reading.kind)  # none for a crash: always told
+            if gate is None or gate.heard():
+                self.bridge.defer(partial(self._publish_reading, reading, imu_config))
+            if reading.kind == "odom" and self._clock_heard is not None and self._clock_heard.heard():
                 self.bridge.defer(partial(self._publish_clock, reading.t_ns))
 
     def _publish_reading(self, reading: Reading, imu_config: SensorConfig) -> None:

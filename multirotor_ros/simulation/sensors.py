@@ -247,6 +247,11 @@ class ImuReading:
     w_WB_B: FloatArray
 
 
+# [s] intervals this close share their noise scales (Imu.sample): the bias walk's step changes by 6e-6 of
+# itself at 1200 Hz, against a recomputation in every sample.
+SAME_INTERVAL_S = 1e-8
+
+
 class Imu:
     """3DM-GX3-25-like IMUs of V vehicles: white noise plus a bias that starts at a draw and walks.
 
@@ -287,13 +292,15 @@ class Imu:
         c = self.config
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
-        if c is not self._scaled_config or dt != self._scaled_dt:
+        # Intervals differ in their last bits (differences of float times; ArduPilot's 1200 Hz frames
+        # alternate 833,333 and 833,334 ns): within SAME_INTERVAL_S the scales stay.
+        if c is not self._scaled_config or abs(dt - self._scaled_dt) > SAME_INTERVAL_S:
             walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
             self._scales = (
                 np.array([c.accel_bias_stability_m_s2 * walk, c.gyro_bias_stability_rad_s * walk]),
                 np.array([c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s]),
             )
-            self._scaled_config, self._scaled_dt = c, dt  # a fixed-rate IMU keeps its scales
+            self._scaled_config, self._scaled_dt = c, dt
         f_B, w_B, angles = np.empty((3, *a_WB_W.shape))
         # New bias arrays each sample: a reading handed out earlier keeps the biases of its time.
         self.accel_bias, self.gyro_bias = self.accel_bias.copy(), self.gyro_bias.copy()
