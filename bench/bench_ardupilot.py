@@ -177,22 +177,20 @@ def run_node(
     with open(log_path, "w") as log:
         node = subprocess.Popen(command, env=environment, stdout=log, stderr=subprocess.STDOUT)
     sitl = _sitl(workdir, port, airframe_name, speedup, rate_hz)
+    listener: subprocess.Popen[str] | None = None
     try:
         deadline = time.monotonic() + 60.0
         while "outputs:" not in log_path.read_text():
             if node.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"the node did not start:\n{log_path.read_text()}")
             time.sleep(0.1)
-        listener = (
-            subprocess.Popen(
+        if heard:
+            listener = subprocess.Popen(
                 [sys.executable, __file__, "--role", "listener"],
                 env=environment,
                 stdout=subprocess.PIPE,
                 text=True,
-            )  # fmt: skip
-            if heard
-            else None
-        )
+            )
         sitl.start()
         cpu = _cpu_s(node.pid)
         started = time.monotonic()
