@@ -270,14 +270,27 @@ def test_reset_puts_the_vehicle_back_and_tells_the_vehicle(vehicle: dict) -> Non
         return stamp_to_ns(message.header.stamp) > reset_ns + 500_000_000
 
     recorders["odom"].wait_for(later, timeout=STARTUP_TIMEOUT_S)
-    odometry = recorders["odom"].messages
-    # The reset's own message may be dropped by the recorder's queue in a burst (seen once in CI): the
-    # vehicle is found at its initial pose within 20 ms after it, before it could have moved 3 mm.
-    soon = [m for m in odometry if reset_ns <= stamp_to_ns(m.header.stamp) <= reset_ns + 20_000_000]
-    assert any(abs(m.pose.pose.position.z) < 3e-3 and abs(m.pose.pose.position.x) < 3e-3 for m in soon)
-    after = [m for m in odometry if stamp_to_ns(m.header.stamp) > reset_ns]
-    # The controller started over too (simulation_reset): it holds where the vehicle now stands.
-    assert max(m.pose.pose.position.z for m in after) < 0.05, "stays on the ground where it started"
+    # In lockstep the simulator can outrun the probe's queue, so the message stamped at the reset itself may
+    # be dropped (seen in CI), and the last state before the reset carries the same stamp: what is judged
+    # is every state the probe got in the half second after it. The vehicle stood at z > 1 m, on its way to
+    # x = 0.5 m; reset, it is back at the origin, and the controller, which started over too
+    # (simulation_reset), holds it where it now stands. (It keeps the rotor effectiveness an earlier test
+    # published, rotor 3 at 0.94, so it tilts a little on the ground: the vehicle drifts 1.4 cm in 0.5 s.)
+    after = [
+        m for m in recorders["odom"].messages if 0 < stamp_to_ns(m.header.stamp) - reset_ns <= 500_000_000
+    ]
+    assert after, "odometry after the reset"
+    positions = np.array(
+        [[m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.position.z] for m in after]
+    )
+    assert np.abs(positions[:, :2]).max() < 0.05, "back at the initial x, y and held there"
+    assert positions[:, 2].max() < 0.05, "stays on the ground where it started"
+    first = min(after, key=lambda m: stamp_to_ns(m.header.stamp))
+    if stamp_to_ns(first.header.stamp) - reset_ns <= 20_000_000:
+        # Within 20 ms of the reset it cannot have moved 3 mm from where the reset put it; 5 mm is that plus
+        # twice the odometry's 1 mm noise.
+        position = first.pose.pose.position
+        assert max(abs(position.x), abs(position.y), abs(position.z)) < 5e-3
 
 
 def test_rviz_config_moves_to_the_vehicle_namespace() -> None:
