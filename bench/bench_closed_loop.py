@@ -157,6 +157,14 @@ class Probe:
         self.node.create_subscription(msg_type, topic, on_message, qos, raw=True)
         return arrivals, lock
 
+    def pacing(self) -> PacingWatch:
+        """Watch the simulator's ``pacing`` status (1 Hz of wall time)."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        watch = PacingWatch()
+        self.node.create_subscription(DiagnosticArray, "/pacing", watch.on_pacing, 10)
+        return watch
+
     def close(self) -> None:
         self.running = False
         self.thread.join(5.0)
@@ -201,13 +209,13 @@ def node_processes(
     return processes
 
 
-def fly(probe: Probe, processes: list[subprocess.Popen], commands: dict[int, float], logs: Path) -> None:
+def fly(probe: Probe, processes: list[subprocess.Popen], running: Callable[[], bool], logs: Path) -> None:
     """Wait for the loop to run, send the hover setpoint, let it settle."""
     from geometry_msgs.msg import PoseStamped
 
     setpoint = probe.node.create_publisher(PoseStamped, "/setpoint", 10)
     deadline = time.monotonic() + 120.0
-    while not (commands and setpoint.get_subscription_count()):
+    while not (running() and setpoint.get_subscription_count()):
         if time.monotonic() > deadline or any(p.poll() is not None for p in processes):
             raise SystemExit(f"the nodes did not come up; logs in {logs}")
         time.sleep(0.1)
@@ -219,6 +227,40 @@ def fly(probe: Probe, processes: list[subprocess.Popen], commands: dict[int, flo
     time.sleep(WARM_UP_S)  # discovery settled, caches hot
 
 
+class PacingWatch:
+    """The simulator's newest ``pacing`` status, its arrival time and how many have come."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.arrival = float("nan")
+        self.values: dict[str, str] = {}
+        self.lock = threading.Lock()
+
+    def on_pacing(self, message: Any) -> None:
+        now = time.perf_counter()
+        for item in message.status:
+            if item.name.endswith("pacing"):
+                with self.lock:
+                    self.count, self.arrival = self.count + 1, now
+                    self.values = {v.key: v.value for v in item.values}
+
+    def simulated_s(self) -> float:
+        with self.lock:
+            return float(self.values.get("simulated_time_s", "0"))
+
+    def next(self, processes: list[subprocess.Popen]) -> tuple[float, float, list[float]]:
+        """Wait for the next status: its arrival (perf_counter s), simulated time [s], the nodes' CPU [s]."""
+        seen = self.count
+        deadline = time.monotonic() + 10.0
+        while self.count == seen:
+            if time.monotonic() > deadline:
+                raise SystemExit("no pacing status from the simulator for 10 s")
+            time.sleep(0.002)
+        cpu = [cpu_s(p.pid) for p in processes]
+        with self.lock:
+            return self.arrival, float(self.values["simulated_time_s"]), cpu
+
+
 def lockstep(
     seconds: float,
     airframe: str,
@@ -228,6 +270,7 @@ def lockstep(
     profile: Path | None,
     identifier: bool = False,
 ) -> dict:
+    """The loop's rate unobserved (from the simulator's pacing status), then watched by the probe."""
     from geometry_msgs.msg import Vector3Stamped
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import JointState
@@ -239,42 +282,51 @@ def lockstep(
     processes = node_processes(airframe, logs, tag, ["real_time_factor:=0.0"], [], identifier, **env)
     probe = Probe("bench_probe")
     try:
-        commands, lock = probe.stamps("/motor_speed_cmd", JointState)
-        odometry, odometry_lock = probe.stamps("/odom", Odometry)
+        pacing = probe.pacing()
         residuals, residuals_lock = probe.stamps("/residuals", Vector3Stamped, qos=1000)
-        fly(probe, processes, commands, logs)
+        fly(probe, processes, lambda: pacing.simulated_s() > 0.0, logs)
         deadline = time.monotonic() + 120.0
         while identifier and not residuals:  # its start-up (compiled kernels) is not measured
             if time.monotonic() > deadline:
                 raise SystemExit(f"the identifier published no residuals; logs in {logs}")
             time.sleep(0.1)
+        # Unobserved, as the ceiling is: nothing but the 1 Hz status leaves the two nodes.
         gaps_before = gaps_in_log(logs / f"identifier-{tag}.log")
-        with lock, odometry_lock, residuals_lock:
-            commands.clear()
-            odometry.clear()
+        with residuals_lock:
             residuals.clear()
-        cpu_start = [cpu_s(p.pid) for p in processes]
-        start_wall = time.perf_counter()
-        time.sleep(seconds)
-        with lock, odometry_lock, residuals_lock:
-            wall = time.perf_counter() - start_wall
-            cpu = [cpu_s(p.pid) - c for p, c in zip(processes, cpu_start, strict=True)]
-            command_items = sorted(commands.items())
-            odometry_items = dict(odometry)
+        start_wall, start_sim, cpu_start = pacing.next(processes)
+        time.sleep(max(0.0, seconds - 1.0))
+        end_wall, end_sim, cpu_end = pacing.next(processes)
+        with residuals_lock:
             residual_stamps = list(residuals)
         gaps = gaps_in_log(logs / f"identifier-{tag}.log") - gaps_before
+        wall, simulated_s = end_wall - start_wall, end_sim - start_sim
+        periods = simulated_s / (CONTROL_PERIOD_NS * 1e-9)
+        cpu = [end - begin for end, begin in zip(cpu_end, cpu_start, strict=True)]
+        # Watched: the probe takes every command and state (serialised) to time the step in between; the
+        # nodes then publish to two readers each, and the probe is a third busy process.
+        commands, lock = probe.stamps("/motor_speed_cmd", JointState)
+        odometry, odometry_lock = probe.stamps("/odom", Odometry)
+        time.sleep(WARM_UP_S)
+        with lock, odometry_lock:
+            commands.clear()
+            odometry.clear()
+        start_watched = time.perf_counter()
+        time.sleep(seconds)
+        with lock, odometry_lock:
+            watched_wall = time.perf_counter() - start_watched
+            command_items = sorted(commands.items())
+            odometry_items = dict(odometry)
     finally:
         probe.close()
         stop(processes)
-    periods = len(command_items)
     latencies = [
         odometry_items[t + CONTROL_PERIOD_NS] - received
         for t, received in command_items
         if t + CONTROL_PERIOD_NS in odometry_items
     ]
     latencies = [latency for latency in latencies if latency > 0] or [float("nan")] * 2
-    simulated_s = (max(odometry_items) - min(odometry_items)) * 1e-9
-    watched = (
+    identified = (
         {
             "identifier_samples_per_sim_s": len(residual_stamps) / simulated_s,
             "identifier_gaps": gaps,
@@ -284,9 +336,10 @@ def lockstep(
         else {}
     )
     return {
-        **watched,
+        **identified,
         "sim_s_per_wall_s": simulated_s / wall,
         "periods_per_s": periods / wall,
+        "watched_periods_per_s": len(command_items) / watched_wall,
         "latency_median_ms": 1e3 * statistics.median(latencies),
         "latency_p95_ms": 1e3 * statistics.quantiles(latencies, n=20)[-1],
         "simulator_cpu_ms": 1e3 * cpu[0] / max(periods, 1),
@@ -378,14 +431,16 @@ def ping(executor_name: str, seconds: float) -> None:
     send()
     warm_end = time.monotonic() + WARM_UP_S
     spin(lambda: time.monotonic() < warm_end)
-    counted, started = answers[0], time.perf_counter()
+    counted, started, cpu_started = answers[0], time.perf_counter(), time.process_time()
     end = time.monotonic() + seconds
     spin(lambda: time.monotonic() < end)
-    print(f"RATE {(answers[0] - counted) / (time.perf_counter() - started):.1f}", flush=True)
+    round_trips = answers[0] - counted
+    print(f"RATE {round_trips / (time.perf_counter() - started):.1f}", flush=True)
+    print(f"CPU {(time.process_time() - cpu_started) / max(round_trips, 1):.6f}", flush=True)
 
 
-def ceiling(seconds: float, logs: Path, executor: str, tag: str) -> float:
-    """Round trips per second of the ping-pong, both sides on ``executor``."""
+def ceiling(seconds: float, logs: Path, executor: str, tag: str) -> tuple[float, float]:
+    """Round trips per second of the ping-pong, both sides on ``executor``; ping's CPU [s] per round trip."""
     new_domain()
     me = [sys.executable, str(Path(__file__).resolve())]
     partner = start([*me, "--role", "pong", "--executors", executor], logs / f"pong-{tag}.log")
@@ -398,10 +453,10 @@ def ceiling(seconds: float, logs: Path, executor: str, tag: str) -> float:
         )
     finally:
         stop([partner])
-    rates = [float(line.split()[1]) for line in done.stdout.splitlines() if line.startswith("RATE ")]
-    if not rates:
+    reported = dict(line.split(maxsplit=1) for line in done.stdout.splitlines() if " " in line)
+    if "RATE" not in reported:
         print(f"  the ping side reported no rate; its output:\n{done.stdout}{done.stderr}")
-    return rates[0] if rates else float("nan")
+    return float(reported.get("RATE", "nan")), float(reported.get("CPU", "nan"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -431,7 +486,7 @@ def realtime(seconds: float, airframe: str, logs: Path) -> dict:
     try:
         probe.node.create_subscription(DiagnosticArray, "/pacing", on_pacing, 10)
         commands, _ = probe.stamps("/motor_speed_cmd", JointState)
-        fly(probe, processes, commands, logs)
+        fly(probe, processes, lambda: bool(commands), logs)
         first = latest()
         rss = [(time.monotonic(), [rss_mb(p.pid) for p in processes])]
         cpu_start = [cpu_s(p.pid) for p in processes]
@@ -575,21 +630,24 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(
                 f"lockstep, nodes on {executor:6s}: {loop['sim_s_per_wall_s']:.2f} sim s/wall s = "
-                f"{loop['periods_per_s']:.0f} control periods/s; command -> state median "
-                f"{loop['latency_median_ms']:.2f} ms, p95 {loop['latency_p95_ms']:.2f} ms; CPU per period: "
-                f"simulator {loop['simulator_cpu_ms']:.2f} ms, controller {loop['controller_cpu_ms']:.2f} ms"
-                f"{watched} ({load()})",
+                f"{loop['periods_per_s']:.0f} control periods/s unobserved (CPU per period: simulator "
+                f"{loop['simulator_cpu_ms']:.2f} ms, controller {loop['controller_cpu_ms']:.2f} ms"
+                f"{watched}); "
+                f"watched by the probe {loop['watched_periods_per_s']:.0f} control periods/s, command -> "
+                f"state median {loop['latency_median_ms']:.2f} ms, p95 {loop['latency_p95_ms']:.2f} ms "
+                f"({load()})",
                 flush=True,
             )
             if profile is not None:
                 where_the_time_goes(profile, loop["periods"])
         if not args.skip_ceiling:
             for executor in EXECUTORS:
-                rate = ceiling(args.seconds, logs, executor, f"{executor}-{round_}")
+                rate, ping_cpu_s = ceiling(args.seconds, logs, executor, f"{executor}-{round_}")
                 tops[executor].append(rate)
                 print(
                     f"ceiling, bare rclpy Odometry -> JointState ping-pong on {executor:6s}: {rate:.0f} "
-                    f"round trips/s = {rate * CONTROL_PERIOD_NS * 1e-9:.2f} sim s/wall s ({load()})",
+                    f"round trips/s = {rate * CONTROL_PERIOD_NS * 1e-9:.2f} sim s/wall s (CPU per round "
+                    f"trip: ping side {1e3 * ping_cpu_s:.2f} ms) ({load()})",
                     flush=True,
                 )
     print("summary (median of the rounds):")

@@ -51,6 +51,10 @@ class StateLimits:
             if values is None:
                 continue
             array = np.asarray(values, dtype=float)
+            # Fast path, every message of a flight: NaN fails the comparison, an overflow gives inf.
+            flat = array.ravel().tolist()
+            if math.sumprod(flat, flat) <= limit * limit:
+                continue
             if not np.all(np.isfinite(array)):
                 return Refusal(f"non-finite {name}", f"{what} {name} {format_vector(array)}")
             # The largest component first: the norm of 1e308-sized components overflows.
@@ -127,9 +131,11 @@ def jump_refusal(
 
     ``margin_m`` covers measurement noise and a first sample after a short gap.
     """
-    with np.errstate(over="ignore", invalid="ignore"):
-        difference = np.asarray(current_m, dtype=float) - np.asarray(previous_m, dtype=float)
-        distance = float(np.sqrt(np.sum(np.square(difference / 1e3))) * 1e3)
+    # math.dist scales before squaring: 1e308-sized coordinates give their distance, or inf, never NaN.
+    distance = math.dist(
+        np.asarray(previous_m, dtype=float).ravel().tolist(),
+        np.asarray(current_m, dtype=float).ravel().tolist(),
+    )
     allowed = limits.speed_m_s * max(dt_s, 0.0) + margin_m
     if not math.isfinite(distance) or distance > allowed:
         return Refusal(

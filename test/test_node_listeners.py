@@ -1,11 +1,11 @@
-"""ListenerGate: a publisher nobody subscribes to is skipped; a new subscriber is seen within RECHECK_S."""
+"""ListenerGate and StateTopic: unheard topics are skipped, a subscriber is seen within RECHECK_S."""
 
 from __future__ import annotations
 
 import pytest
 
 from multirotor_ros.nodes import listeners
-from multirotor_ros.nodes.listeners import RECHECK_S, ListenerGate
+from multirotor_ros.nodes.listeners import RECHECK_S, ListenerGate, StateTopic
 
 
 class CountingPublisher:
@@ -39,3 +39,45 @@ def test_the_middleware_is_asked_once_per_recheck_interval_and_a_new_subscriber_
     publisher.subscriptions = 0
     clock[0] += RECHECK_S
     assert not gate.heard()  # the last subscriber left
+
+
+class RecordingPublisher(CountingPublisher):
+    def __init__(self) -> None:
+        super().__init__()
+        self.published: list[object] = []
+
+    def publish(self, message: object) -> None:
+        self.published.append(message)
+
+
+def test_a_state_nobody_heard_is_built_when_a_subscriber_comes_and_sent_again(clock):
+    publisher = RecordingPublisher()
+    topic = StateTopic(publisher)
+    built: list[int] = []
+
+    def build(value: int):
+        def make() -> tuple[str, int]:
+            built.append(value)
+            return ("state", value)
+
+        return make
+
+    assert topic.send(build(1)) is None  # nobody listens: neither built nor published
+    assert topic.send(build(2)) is None
+    topic.resend()
+    assert built == [] and publisher.published == []
+    publisher.subscriptions = 1  # a controller starts while lockstep waits
+    clock[0] += RECHECK_S
+    topic.resend()
+    topic.resend()
+    assert built == [2], "the newest state only, built once"
+    assert publisher.published == [("state", 2), ("state", 2)]
+    assert topic.send(build(3)) == ("state", 3)
+    assert publisher.published[-1] == ("state", 3) and built == [2, 3]
+
+
+def test_nothing_is_resent_before_a_first_state():
+    publisher = RecordingPublisher()
+    publisher.subscriptions = 1
+    StateTopic(publisher).resend()
+    assert publisher.published == []

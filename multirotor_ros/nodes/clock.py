@@ -87,15 +87,17 @@ class NodeTime:
     spun (7 controllers of 12 joining a running simulator read time 0 for good). Make it last in the
     node's constructor, just before the spin. A node that uses it sets ``KEEPS_ITS_OWN_SIMULATED_TIME``
     and has no timer on ROS time. ``on_clock`` is called with each simulated time heard while the
-    node is on simulated time.
+    node is on simulated time. With ``subscribe`` false the node makes no subscription: a
+    :class:`SharedClock` of its process gives it every ``/clock`` message.
     """
 
-    def __init__(self, node: Node, on_clock: Callable[[int], None] | None = None):
+    def __init__(self, node: Node, on_clock: Callable[[int], None] | None = None, *, subscribe: bool = True):
         self._node = node
         self._on_clock = on_clock
         self.simulated = bool(node.get_parameter("use_sim_time").value)
         self.simulated_now_ns: int | None = None  # the newest /clock heard
-        node.create_subscription(ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
+        if subscribe:
+            node.create_subscription(ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
 
     @property
     def running(self) -> bool:
@@ -113,7 +115,26 @@ class NodeTime:
         self.simulated = simulated
         self.simulated_now_ns = None
 
-    def _heard(self, message: ClockMessage) -> None:
+    def heard(self, message: ClockMessage) -> None:
+        """A ``/clock`` message: the node's simulated time now."""
         self.simulated_now_ns = stamp_to_ns(message.clock)
         if self.simulated and self._on_clock is not None:
             self._on_clock(self.simulated_now_ns)
+
+
+class SharedClock:
+    """One ``/clock`` subscription for the nodes of a process, each with its ``NodeTime(subscribe=False)``.
+
+    Every subscription in a process gets every ``/clock`` message: taken from the middleware, converted to
+    Python and dispatched once per subscription. Ten controllers in one process at 250 Hz took 2,500 such
+    messages a second where 250 carry the time. The same caveat as ``NodeTime``'s: create it last in the
+    constructor, just before the spin. ``times``: the nodes' times, told in their order.
+    """
+
+    def __init__(self, node: Node, times: list[NodeTime]):
+        self.times = times
+        node.create_subscription(ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
+
+    def _heard(self, message: ClockMessage) -> None:
+        for node_time in self.times:
+            node_time.heard(message)

@@ -218,7 +218,8 @@ class ControllerNode(Node):
     # Reads /clock itself (module docstring): it may spin on the EventsExecutor (entry.make_executor).
     KEEPS_ITS_OWN_SIMULATED_TIME = True
 
-    def __init__(self, **kwargs: Any):
+    def __init__(self, *, clock_subscription: bool = True, **kwargs: Any):
+        """``clock_subscription`` false: the process's SharedClock (nodes/clock.py) tells ``time`` instead."""
         super().__init__("controller", **kwargs)
         name = self.declare_parameter(
             "airframe",
@@ -276,20 +277,20 @@ class ControllerNode(Node):
             self._reset,
             lambda message: frame_refusal(message, self._odom_frame),
             self._odometry_check.gate.future_tolerance_s,
-            lambda: self._time.now_ns() if self._time.running else None,
+            lambda: self.time.now_ns() if self.time.running else None,
         )
-        self._time = NodeTime(self, self._on_simulated_clock)
-        if self._time.simulated:
+        self.time = NodeTime(self, self._on_simulated_clock, subscribe=clock_subscription)
+        if self.time.simulated:
             self._wall_timer.cancel()
         self.get_logger().info(
             f"{self.airframe.name}: seed 1 saturation law at {self.law.gains.rate_hz:g} Hz"
         )
 
     def _on_odom(self, message: Odometry) -> None:
-        if not self._time.running:
+        if not self.time.running:
             # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
             return
-        now_ns = self._time.now_ns()
+        now_ns = self.time.now_ns()
         if self._reset_fence.stale(stamp_to_ns(message.header.stamp), now_ns):
             return
         state = self._odometry_check.accept(message, now_ns)
@@ -300,7 +301,7 @@ class ControllerNode(Node):
         self._odom_frame = message.header.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
-        if self._time.simulated:
+        if self.time.simulated:
             stamp_ns = stamp_to_ns(message.header.stamp)
             resent = stamp_ns == self._state_for_tick.newest_ns
             waiting_tick_ns = self._state_for_tick.state(stamp_ns)
@@ -326,7 +327,7 @@ class ControllerNode(Node):
         if isinstance(target, Refusal):
             self._setpoint_refusals.refuse(target.reason, target.detail)
             return
-        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self._time.now_ns()
+        stamp_ns, now_ns = stamp_to_ns(message.header.stamp), self.time.now_ns()
         if stamp_ns <= now_ns:
             self._target = target
             return
@@ -384,12 +385,12 @@ class ControllerNode(Node):
             self._tick(now_ns)
 
     def _on_timer(self) -> None:
-        self._tick(self._time.now_ns())
+        self._tick(self.time.now_ns())
 
     def _tick(self, now_ns: int) -> None:
-        if self._time.simulated and not self._state_for_tick.tick(now_ns):
+        if self.time.simulated and not self._state_for_tick.tick(now_ns):
             return  # the odometry of this tick is on its way: computed when it arrives
-        if self._time.simulated and self._state is None:
+        if self.time.simulated and self._state is None:
             # After a reset: no command until odometry comes, and in lockstep none comes (only resends)
             # until this tick has its command; so it waits for that odometry as for one on its way.
             self._state_for_tick.waiting_tick_ns = now_ns
@@ -426,7 +427,10 @@ class ControllerNode(Node):
             )
             self.law.reset()
             return
-        self._last_command = joint_state_from_rotor_speeds(speeds, stamp_from_ns(now_ns))
+        # Filled in place: it is also what a lost command is sent again from (_on_odom).
+        self._last_command = joint_state_from_rotor_speeds(
+            speeds, stamp_from_ns(now_ns), out=self._last_command
+        )
         self._command_pub.publish(self._last_command)
 
     def _reset(self, cause: str, reset_stamp_ns: int | None) -> str:
@@ -441,7 +445,7 @@ class ControllerNode(Node):
         if reset_stamp_ns is None:
             self._reset_fence.open()
         else:
-            self._reset_fence.close(reset_stamp_ns, self._time.now_ns())
+            self._reset_fence.close(reset_stamp_ns, self.time.now_ns())
         line = (
             f"reset by {cause}: integrals and {waiting} waiting setpoints cleared; "
             "holding the next odometry's pose"
@@ -461,10 +465,10 @@ class ControllerNode(Node):
                     + ("on: allocating with rotor_effectiveness" if self._fault_tolerant else "off: nominal")
                 )
             if parameter.name == "use_sim_time":
-                self._time.set_simulated(bool(parameter.value))
+                self.time.set_simulated(bool(parameter.value))
                 self._state_for_tick = StateForTick()
                 self._clock_ticks = ClockTicks(self._clock_ticks.period_ns)
-                if self._time.simulated:
+                if self.time.simulated:
                     self._wall_timer.cancel()
                 else:
                     self._wall_timer.reset()

@@ -5,7 +5,8 @@ nodes/vehicles.py) gets a ``controller`` node of its own (nodes/controller.py) i
 ``NAME`` under this node's: the same topics, parameters, services and logs as a controller process per
 vehicle, ``ros2 param set /uav2/controller ...`` included. They share one process and one executor, as
 ROS 2 composes nodes in a component container, which rclpy does not offer: a controller process costs
-its interpreter, its DDS participant and its own ``/clock`` traffic, and with one process per vehicle a
+its interpreter, its DDS participant and its own ``/clock`` traffic (here one ``/clock`` subscription,
+nodes/clock.py SharedClock, tells every controller), and with one process per vehicle a
 2-core machine kept the control periods of 4 vehicles on time only 23 % of the time
 (bench/bench_fleet_ros.py). Parameters given with ``-p`` apply to every controller; a parameters file
 sets one vehicle's under ``/NAME/controller``. Under ``-r __ns:=/NS`` for the whole process (as ``ros2
@@ -23,6 +24,7 @@ from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from multirotor_ros.nodes.clock import SharedClock
 from multirotor_ros.nodes.controller import ControllerNode
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.vehicles import parse_vehicles
@@ -51,7 +53,7 @@ class FleetControllerNode(Node):
                 "parameter vehicles: name at least one vehicle, e.g. vehicles:=\"['uav1', 'uav2']\""
             )
         namespace = self.get_namespace().rstrip("/")
-        self.members: list[Node] = []
+        self.members: list[ControllerNode] = []
         try:
             for vehicle in vehicles:
                 # The member's own remap of its namespace: a node's local arguments come before the
@@ -59,7 +61,7 @@ class FleetControllerNode(Node):
                 # process) moves this node to /NS and each member to /NS/NAME, not all onto /NS.
                 own = f"{namespace}/{vehicle.name}"
                 remap = ["--ros-args", "-r", f"__ns:={own}"]
-                member = ControllerNode(**kwargs, namespace=own, cli_args=remap)
+                member = ControllerNode(**kwargs, namespace=own, cli_args=remap, clock_subscription=False)
                 self.members.append(member)
         except Exception:
             for built in self.members:
@@ -68,6 +70,8 @@ class FleetControllerNode(Node):
         self.get_logger().info(
             f"{len(vehicles)} controllers: " + ", ".join(m.get_fully_qualified_name() for m in self.members)
         )
+        # Last, just before the spin (nodes/clock.py NodeTime): one /clock subscription for all of them.
+        self._shared_clock = SharedClock(self, [member.time for member in self.members])
 
 
 def main(args: list[str] | None = None) -> int:

@@ -15,7 +15,11 @@ Rates: odom and clock at ``publish_rate_hz`` (250 Hz), imu 100 Hz, pose 100 Hz, 
 range 15 Hz (the airframe YAML's ``sensors`` section, exposed as read-only ``sensors.*`` parameters).
 QoS: odom, motor_speeds, motor_speed_cmd reliable (depth 10); imu, pose, range best effort (sensor data);
 clock best effort depth 1 (as rclpy's time source subscribes); injected_faults reliable + transient local,
-so a late subscriber gets the current truth.
+so a late subscriber gets the current truth. The volatile topics (state topics, /tf, /clock) are filled
+and published only while somebody subscribes (nodes/listeners.py, asked every 0.1 s): a controller hears
+odom and the clock, and a publish nobody hears still costs its conversion and the middleware's
+bookkeeping. Their noise is drawn all the same, so who listens never changes a flight. What lockstep
+resends is built from the newest reading even if nobody heard it when it was new.
 
 Frames and tf (REP-105): ``frame_prefix`` + ``odom`` / ``base_link`` (+ the vehicle's name in a fleet);
 the launch files set the prefix from the namespace (``uav1/``) so that vehicles' frames do not collide.
@@ -108,6 +112,7 @@ from tf2_msgs.msg import TFMessage
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, ClockClaim, steady_clock
 from multirotor_ros.nodes.entry import run_node
+from multirotor_ros.nodes.listeners import ListenerGate, StateTopic
 from multirotor_ros.nodes.messages import (
     LATCHED_QOS,
     joint_state_from_rotor_speeds,
@@ -374,16 +379,22 @@ class _VehicleTopics:
         self.command_gate = StampGate(future_tolerance_s=publish_period_s) if clock_on else StampGate()
         self.refusals = RefusalCounter(node.get_logger().warning, prefix + "motor_speed_cmd")
         self.unstamped_commands = 0
-        # The newest message of each state topic, sent again while lockstep waits (_resend_state).
-        self.last_sent: dict[str, Any] = {}
-        self.publishers = {
-            # Deep queues: a subscriber busy for a moment (the identifier refitting) still gets the backlog.
-            "odom": node.create_publisher(Odometry, prefix + "odom", STATE_QUEUE_DEPTH),
-            "imu": node.create_publisher(Imu, prefix + "imu", qos_profile_sensor_data),
-            "pose": node.create_publisher(PoseStamped, prefix + "pose", qos_profile_sensor_data),
-            "range": node.create_publisher(Range, prefix + "range", qos_profile_sensor_data),
-            "motor_speeds": node.create_publisher(JointState, prefix + "motor_speeds", STATE_QUEUE_DEPTH),
+        # Each state topic keeps its newest message, sent again while lockstep waits (_resend_state), and
+        # publishes only while somebody listens (nodes/listeners.py).
+        self.topics = {
+            kind: StateTopic(node.create_publisher(message_type, prefix + kind, qos))
+            for kind, message_type, qos in (
+                # Deep queues: a subscriber busy for a moment (the identifier refitting) gets the backlog.
+                ("odom", Odometry, STATE_QUEUE_DEPTH),
+                ("imu", Imu, qos_profile_sensor_data),
+                ("pose", PoseStamped, qos_profile_sensor_data),
+                ("range", Range, qos_profile_sensor_data),
+                ("motor_speeds", JointState, STATE_QUEUE_DEPTH),
+            )
         }
+        self.odometry: Odometry | None = (
+            None  # the message odom is filled into (SimulatorNode._odometry_message)
+        )
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
@@ -396,11 +407,6 @@ class _VehicleTopics:
             )
             for topic in node.follower_topics
         ]
-
-    def send(self, kind: str, message: Any) -> None:
-        """Publish on one of the state topics, and keep the message to send again (_resend_state)."""
-        self.last_sent[kind] = message
-        self.publishers[kind].publish(message)
 
 
 class SimulatorNode(Node):
@@ -499,6 +505,8 @@ class SimulatorNode(Node):
         self._odometry_covariances = odometry_covariances(self.sim.sensor_config)
         # tf is absolute, as tf2 listeners expect; frame_prefix and the vehicle names keep vehicles apart.
         self._tf_pub = self.create_publisher(TFMessage, "/tf", TF_QOS) if p["publish_tf"] else None
+        self._tf_listeners = ListenerGate(self._tf_pub) if self._tf_pub is not None else None
+        self._clock_listeners = ListenerGate(self._clock_pub) if self._clock_pub is not None else None
         self._tf_static_pub = (
             self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS) if p["publish_tf"] else None
         )
@@ -693,7 +701,7 @@ class SimulatorNode(Node):
             vehicle.resets.publish(Header(stamp=stamp, frame_id=vehicle.frames[0]))
             # The state it starts over from, at once: a lockstep controller computes its next command on it
             # (and the simulator resends it while it waits, whichever of the two topics arrives first).
-            self._publish_odometry(vehicle, self.sim.x[vehicle.index], stamp)
+            self._publish_odometry(vehicle, self.sim.x[vehicle.index].copy(), stamp)
         response.success = True
         response.message = f"reset at t = {self.sim.t_s:.3f} s: vehicles at their initial state"
         self.get_logger().info(response.message)
@@ -801,18 +809,19 @@ class SimulatorNode(Node):
             if kind == "odom":
                 self._publish_odometry(vehicle, data, stamp)
                 # One clock for all vehicles: after the last one's state of this time.
-                if self._clock_pub is not None and reading.vehicle == len(self.vehicles) - 1:
-                    self._clock_pub.publish(Clock(clock=stamp))
+                if self._clock_listeners is not None and reading.vehicle == len(self.vehicles) - 1:
+                    if self._clock_listeners.heard():
+                        self._clock_listeners.publisher.publish(Clock(clock=stamp))
             elif kind == "imu":
-                vehicle.send(
-                    "imu", simulated_imu_message(stamp, vehicle.frames[1], data, self.sim.sensor_config)
+                vehicle.topics["imu"].send(
+                    partial(simulated_imu_message, stamp, vehicle.frames[1], data, self.sim.sensor_config)
                 )
             elif kind == "pose":
-                vehicle.send("pose", pose_message(stamp, vehicle.frames[0], *data))
+                vehicle.topics["pose"].send(partial(pose_message, stamp, vehicle.frames[0], *data))
             elif kind == "range":
-                vehicle.publishers["range"].publish(self._range_message(stamp, vehicle.frames[1], data))
+                vehicle.topics["range"].send(partial(self._range_message, stamp, vehicle.frames[1], data))
             elif kind == "motor_speeds":
-                vehicle.send("motor_speeds", joint_state_from_rotor_speeds(data, stamp))
+                vehicle.topics["motor_speeds"].send(partial(joint_state_from_rotor_speeds, data, stamp))
             elif kind == "crash":
                 vehicle.crashed.publish(Bool(data=True))
                 which = f"{vehicle.spec.name}: " if vehicle.spec.name else ""
@@ -827,12 +836,20 @@ class SimulatorNode(Node):
                 )
 
     def _publish_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> None:
-        """A vehicle's odom, with its covariances, and its transform on /tf."""
-        odometry = odometry_message(state, stamp, *vehicle.frames)
-        odometry.pose.covariance, odometry.twist.covariance = self._odometry_covariances
-        vehicle.send("odom", odometry)
-        if self._tf_pub is not None:
-            self._tf_pub.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
+        """A vehicle's odom, with its covariances, and its transform on /tf (``state``: not changed later)."""
+        odometry = vehicle.topics["odom"].send(partial(self._odometry_message, vehicle, state, stamp))
+        if self._tf_listeners is not None and self._tf_listeners.heard():
+            if odometry is None:
+                odometry = self._odometry_message(vehicle, state, stamp)
+            self._tf_listeners.publisher.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
+
+    def _odometry_message(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> Odometry:
+        # Filled in place (a new Odometry costs more than its fields): what it held was published already,
+        # and resending means sending the newest state.
+        if vehicle.odometry is None:
+            vehicle.odometry = Odometry()
+            vehicle.odometry.pose.covariance, vehicle.odometry.twist.covariance = self._odometry_covariances
+        return odometry_message(state, stamp, *vehicle.frames, out=vehicle.odometry)
 
     def _resend_state(self) -> None:
         """The newest state messages and clock again (same stamps).
@@ -842,8 +859,8 @@ class SimulatorNode(Node):
         the follower is let go.
         """
         for vehicle in self.vehicles:
-            for kind, message in vehicle.last_sent.items():
-                vehicle.publishers[kind].publish(message)
+            for topic in vehicle.topics.values():
+                topic.resend()
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.sim.t_ns)))
 
