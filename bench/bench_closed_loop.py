@@ -6,20 +6,24 @@
 1. Lockstep: ``multirotor node simulator`` (1 kHz physics, real_time_factor 0, lockstep, clock) and
    ``multirotor node controller`` (250 Hz, use_sim_time) hovering the vehicle, once per executor the
    nodes can spin with (``MULTIROTOR_ROS_EXECUTOR``, nodes/entry.py; the controller keeps its simulated
-   time itself, so it spins on the executor named too). Reported: simulated seconds per
-   wall second and control periods per second; the latency from a motor command to the next state that
-   reflects it (the wall time between the probe receiving ``motor_speed_cmd`` stamped t and receiving
-   ``odom`` stamped t + 4 ms); the CPU time each node process spends per control period (all its threads,
-   from /proc: what the loop costs, whatever else the machine runs). With ``--identifier`` a third
-   process, ``multirotor node identifier`` (use_sim_time), watches the loop as it would a flight: a
-   lockstep simulator does not wait for it, so what it keeps up with is reported, the state samples it
-   processed per simulated second (``residuals``: one per sample, ``sample_rate_hz`` 100 asked) and the
-   gaps in its data that restarted its observer (its log), with its CPU time per control period.
-2. Ceiling: two bare rclpy processes exchanging the same messages (Odometry one way, an 8-rotor
-   JointState back) in ping-pong, each answering in its subscription callback, with no physics and no
-   control: round trips per second, i.e. the most 4 ms control periods rclpy could carry per second; once
-   with the SingleThreadedExecutor and once with the EventsExecutor (spun as nodes/entry.py spins it).
-   The loop is compared with the best of the two.
+   time itself, so it spins on the executor named too). First unobserved, as the ceiling runs: simulated
+   seconds per wall second and control periods per second from the simulator's own 1 Hz ``pacing``
+   status (its simulated time at two statuses, over the wall time between their arrivals), and the CPU
+   time each node process spends per control period (all its threads, from /proc: what the loop costs,
+   whatever else the machine runs). Then watched: the probe takes every command and state (serialised)
+   for the latency from a motor command to the next state that reflects it (the wall time between the
+   probe receiving ``motor_speed_cmd`` stamped t and ``odom`` stamped t + 4 ms), and the rate while it
+   does (each node then publishes to two readers, and the probe is a third busy process). With
+   ``--identifier`` a third process, ``multirotor node identifier`` (use_sim_time), watches the loop as it
+   would a flight: a lockstep simulator does not wait for it, so what it keeps up with is reported, the
+   state samples it processed per simulated second (``residuals``: one per sample, ``sample_rate_hz`` 100
+   asked) and the gaps in its data that restarted its observer (its log), with its CPU time per control
+   period.
+2. Ceiling: two bare rclpy processes exchanging the same messages (Odometry one way, an 8-rotor JointState
+   back) in ping-pong, each answering in its subscription callback, with no physics and no control: round
+   trips per second (and the ping side's CPU time per round trip), i.e. the most 4 ms control periods
+   rclpy could carry per second; once with the SingleThreadedExecutor and once with the EventsExecutor
+   (spun as nodes/entry.py spins it). The loop is compared with the best of the two.
 3. Real time (``--realtime-seconds``, 0 to skip): the simulator at real_time_factor 1 with its clock and the
    controller on use_sim_time, default executor. Reported from the simulator's own ``pacing`` status
    (simulation/pacing.py ControlTiming): the share of control periods on time, i.e. whose command
