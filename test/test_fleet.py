@@ -17,11 +17,12 @@ from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message
 
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.fleet_controller import FleetControllerNode
-from multirotor_ros.nodes.messages import stamp_from_ns
+from multirotor_ros.nodes.messages import stamp_from_ns, stamp_to_ns
 from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
 from multirotor_ros.simulation.pacing import NS_PER_S
 
 # name, initial pose, target (x, y, z) reached at t = 1 s
+PUBLISH_PERIOD_NS = NS_PER_S // 250  # the simulator's default publish_rate_hz
 FLEET = {
     "uav1": ("uav1", (0.0, 0.5, 1.0)),
     "uav2": ("uav2 3 0 0", (3.0, 0.0, 1.5)),
@@ -112,9 +113,17 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
             final = arrived[-1]
             assert final.header.frame_id == f"{name}/odom" and final.child_frame_id == f"{name}/base_link"
             assert np.linalg.norm(position(final) - target) < 0.05, name
-        # One time line: every vehicle's odometry has the same stamps.
-        stamps = [{stamp_s(m) for m in odom[name].messages if 2.0 <= stamp_s(m) <= 6.0} for name in FLEET]
-        assert stamps[0] == stamps[1] == stamps[2]
+        # One time line: every vehicle's odometry is stamped on the same grid of publish periods (250 Hz).
+        # The probe may miss a few of the thousands a lockstep burst sends (the simulator's queue is 50
+        # deep, seen once in CI), so each vehicle must show nearly all the stamps, not every one.
+        stamps = [
+            {stamp_to_ns(m.header.stamp) for m in odom[name].messages if 2.0 <= stamp_s(m) <= 6.0}
+            for name in FLEET
+        ]
+        every = set().union(*stamps)
+        assert all(stamp % PUBLISH_PERIOD_NS == 0 for stamp in every)
+        assert len(every) >= 0.99 * 4.0 * NS_PER_S / PUBLISH_PERIOD_NS
+        assert all(len(seen) >= 0.95 * len(every) for seen in stamps), [len(every) - len(x) for x in stamps]
         (outcome,) = probe.set_parameters("/simulator", {"uav2.fault_motor": 3}).values()
         assert outcome.successful
         truth = faults.wait_for(lambda m: m.status[2].values[0].value == "0", timeout=30.0)[-1]
