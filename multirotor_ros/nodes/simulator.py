@@ -392,9 +392,8 @@ class _VehicleTopics:
                 ("motor_speeds", JointState, STATE_QUEUE_DEPTH),
             )
         }
-        self.odometry: Odometry | None = (
-            None  # the message odom is filled into (SimulatorNode._odometry_message)
-        )
+        # The message odom is filled into (SimulatorNode._odometry_message); its covariances are the node's.
+        self.odometry = Odometry()
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
@@ -502,10 +501,13 @@ class SimulatorNode(Node):
 
         self._clock_pub = self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if clock_on else None
         # The odometry's covariances: fixed by the sensor model (messages.odometry_covariances).
-        self._odometry_covariances = odometry_covariances(self.sim.sensor_config)
+        covariances = odometry_covariances(self.sim.sensor_config)
+        for vehicle in self.vehicles:
+            vehicle.odometry.pose.covariance, vehicle.odometry.twist.covariance = covariances
         # tf is absolute, as tf2 listeners expect; frame_prefix and the vehicle names keep vehicles apart.
-        self._tf_pub = self.create_publisher(TFMessage, "/tf", TF_QOS) if p["publish_tf"] else None
-        self._tf_listeners = ListenerGate(self._tf_pub) if self._tf_pub is not None else None
+        self._tf_listeners = (
+            ListenerGate(self.create_publisher(TFMessage, "/tf", TF_QOS)) if p["publish_tf"] else None
+        )
         self._clock_listeners = ListenerGate(self._clock_pub) if self._clock_pub is not None else None
         self._tf_static_pub = (
             self.create_publisher(TFMessage, "/tf_static", TF_STATIC_QOS) if p["publish_tf"] else None
@@ -846,9 +848,6 @@ class SimulatorNode(Node):
     def _odometry_message(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> Odometry:
         # Filled in place (a new Odometry costs more than its fields): what it held was published already,
         # and resending means sending the newest state.
-        if vehicle.odometry is None:
-            vehicle.odometry = Odometry()
-            vehicle.odometry.pose.covariance, vehicle.odometry.twist.covariance = self._odometry_covariances
         return odometry_message(state, stamp, *vehicle.frames, out=vehicle.odometry)
 
     def _resend_state(self) -> None:
