@@ -338,6 +338,42 @@ def test_only_a_rotor_diagnosed_as_stopped_goes_below_the_floor(
         assert settled[4] >= floor - 1e-9
 
 
+@given(
+    diagnoses=st.lists(
+        st.tuples(
+            st.integers(0, 7),
+            st.sampled_from([0.0, 0.05, 0.4, 0.7, 1.0, 1.2]),
+            st.sampled_from([0.01, CONFIDENT_STD, 0.5]),
+            st.integers(1, 400),
+        ),
+        min_size=1,
+        max_size=5,
+    )
+)
+@settings(deadline=None, max_examples=40)
+def test_a_diagnosis_given_once_then_none_is_the_same_as_giving_it_every_period(diagnoses) -> None:
+    """What a controller does to skip the filter's work between diagnoses (EffectivenessFilter)."""
+    every_period, once = EffectivenessFilter(8), EffectivenessFilter(8)
+    t_s = 0.0
+    for rotor, reported, std, periods in diagnoses:
+        estimate, std_vector = np.ones(8), np.full(8, 0.01)
+        estimate[rotor], std_vector[rotor] = reported, std
+        for period in range(periods):
+            t_s += 1.0 / RATE_HZ
+            expected = every_period.update(t_s, estimate, std_vector)
+            given_once = once.update(t_s, *((estimate, std_vector) if period == 0 else (None, None)))
+            np.testing.assert_array_equal(given_once, expected)
+
+
+def test_the_output_settles_on_its_target_exactly() -> None:
+    effectiveness_filter = EffectivenessFilter(8)
+    estimate = np.array([1, 1, 0.6, 1, 1, 1, 1, 1.0])
+    outputs = _run(effectiveness_filter, [(estimate, CONFIDENT)] + [(None, None)] * 2000)
+    assert not np.array_equal(outputs[10], estimate) and effectiveness_filter.settled
+    np.testing.assert_array_equal(outputs[-1], estimate)
+    assert (np.abs(outputs[1:] - estimate) <= np.abs(outputs[:-1] - estimate)).all()  # no overshoot
+
+
 def test_a_stopped_rotor_leaves_the_allocation_after_a_few_time_constants() -> None:
     allocator, hover = _hover("x8_octorotor")
     effectiveness_filter = EffectivenessFilter(8, time_constant_s=0.2)

@@ -98,6 +98,7 @@ def test_clock_ticks_fall_on_the_multiples_of_the_period_whatever_the_clock_does
     assert [t for t in range(0, 20, 4) if ticks.clock(t)] == [4, 8, 12, 16]
     assert not ticks.clock(16)  # the same time again (a resent clock): no second tick
     assert ticks.clock(29)  # three periods at once: one tick ...
+    assert ticks.next_ns == 32
     assert not ticks.clock(31) and ticks.clock(32)  # ... and the next on the next multiple
     assert not ticks.clock(2) and ticks.clock(4)  # a restarted clock ticks from its start again
     with pytest.raises(ValueError, match="period_ns must be > 0"):
@@ -478,4 +479,48 @@ def test_a_command_lost_in_lockstep_is_sent_again_when_the_simulator_resends_its
         commanded(6 * period_ns, count=1)
         time.sleep(0.3)
         assert len([m for m in commands.messages if stamp_to_ns(m.header.stamp) == 6 * period_ns]) == 1
+        controller.assert_running()
+
+
+@pytest.mark.ros
+def test_the_state_of_the_next_tick_is_computed_without_waiting_for_its_clock(
+    probe: RosProbe, tmp_path
+) -> None:
+    """The probe plays a lockstep simulator: its /clock for an instant comes after that instant's state."""
+    namespace = "/ahead"
+    commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState)
+    clock = probe.publisher(f"{namespace}/clock", Clock)
+    odom = probe.publisher(f"{namespace}/odom", Odometry)
+    hover = np.zeros(13)
+    hover[2], hover[6] = 1.0, 1.0  # 1 m up, level (w = 1)
+    period_ns = 4_000_000
+
+    def stamped(stamp_ns: int) -> list[JointState]:
+        return [m for m in commands.messages if stamp_to_ns(m.header.stamp) == stamp_ns]
+
+    with NodeProcess(
+        "controller",
+        tmp_path / "controller.log",
+        namespace=namespace,
+        parameters={"use_sim_time": True},
+        remaps={"/clock": f"{namespace}/clock"},
+    ) as controller:
+        probe.wait_for_subscribers(odom, timeout=STARTUP_TIMEOUT_S)
+        probe.wait_for_subscribers(clock, timeout=STARTUP_TIMEOUT_S)
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not commands.messages and time.monotonic() < deadline:
+            odom.publish(odometry_message(hover, stamp_from_ns(period_ns)))
+            clock.publish(Clock(clock=stamp_from_ns(period_ns)))
+            time.sleep(0.25)
+        # The state of the next instant alone: its command comes before the clock says it is that time.
+        odom.publish(odometry_message(hover, stamp_from_ns(2 * period_ns)))
+        commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 2 * period_ns, timeout=30.0)
+        clock.publish(Clock(clock=stamp_from_ns(2 * period_ns)))  # ... and its clock adds no second one
+        # A state two periods ahead of the clock is no tick: it waits for the clock.
+        odom.publish(odometry_message(hover, stamp_from_ns(4 * period_ns)))
+        time.sleep(0.5)
+        assert len(stamped(2 * period_ns)) == 1 and not stamped(4 * period_ns)
+        clock.publish(Clock(clock=stamp_from_ns(4 * period_ns)))
+        commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 4 * period_ns, timeout=30.0)
+        assert not stamped(3 * period_ns)
         controller.assert_running()

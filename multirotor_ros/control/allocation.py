@@ -34,19 +34,23 @@ rotor below zero thrust, the torque delivered is not the one wanted (roll_pitch_
 thrust reported is the one the rotors give.
 
 Cost: the directions depend on e, so they are computed once per effectiveness vector (two 4xN
-pseudo-inverses) and cached, the rank of each rotor set once; allocate itself stays a handful of
-small numpy operations (the controller runs it at 250 Hz).
+pseudo-inverses) and cached, the rank of each rotor set once; the three steps of allocate are one
+compiled scalar kernel (model/jit.py): as numpy operations on arrays of N they cost 30-40 us per call,
+almost all of it call overhead, where the controller has 4 ms per period for everything and a fleet
+controller runs it for every vehicle.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from multirotor_ros.model.airframe import Airframe
+from multirotor_ros.model.jit import kernel
 from multirotor_ros.model.rotation import FloatArray
 
 IndexArray = NDArray[np.intp]
@@ -93,7 +97,8 @@ class _Plan:
     alive: IndexArray  # (n,) indices of the rotors allocated
     collective: FloatArray  # (n,) omega^2 per newton of thrust, no roll/pitch torque
     roll_pitch: FloatArray  # (n, 2) omega^2 per N m of roll and pitch torque
-    yaw: FloatArray | None  # (n,) omega^2 per N m of pure yaw torque; None: no yaw authority at all
+    yaw: FloatArray  # (n,) omega^2 per N m of pure yaw torque (zeros where has_yaw is false)
+    has_yaw: bool  # False: no yaw authority at all (the rotor set's matrix is not of full rank)
     collective_yaw: float  # yaw torque [N m] per newton of collective thrust
     roll_pitch_yaw: FloatArray  # (2,) yaw torque per N m of roll and pitch torque
     pair_room: FloatArray  # (n, n) r_ij = hi/a_j - lo/a_i of step 1 in allocate()
@@ -119,6 +124,8 @@ class Allocator:
         self._ranks: dict[bytes, int] = {}
         self._plans: OrderedDict[bytes, _Plan] = OrderedDict()
         self._nominal = self._plan(np.ones(self.n_rotors))
+        # The kernel compiled (or loaded from numba's cache: about 0.5 s) now, not in a first control period.
+        self.allocate(0.0, (0.0, 0.0, 0.0))
 
     @classmethod
     def for_airframe(cls, airframe: Airframe) -> Allocator:
@@ -131,7 +138,7 @@ class Allocator:
         return float(self.high / self._nominal.collective.max())
 
     def allocate(
-        self, thrust_N: float, torque_B: ArrayLike, effectiveness: ArrayLike | None = None
+        self, thrust_N: float, torque_B: Sequence[float] | FloatArray, effectiveness: ArrayLike | None = None
     ) -> AllocationResult:
         """Rotor speeds for a wanted thrust [N] and body torque (tau_x, tau_y, tau_z) [N m].
 
@@ -142,48 +149,21 @@ class Allocator:
         plan = self._nominal if effectiveness is None else self._plan_for(effectiveness)
         if plan.alive.size == 0:
             return AllocationResult(np.full(self.n_rotors, np.sqrt(self.low)), 0.0, 0.0, 0.0)
-        tau = np.asarray(torque_B, dtype=float)
-        a = plan.collective
-        b = plan.roll_pitch @ tau[:2]
-        # Step 1: the largest k in [0, 1] such that some collective c gives lo <= c a + k b <= hi: for every
-        # pair (i, j), (lo - k b_i)/a_i <= (hi - k b_j)/a_j, i.e. k d_ij <= r_ij, d_ij = b_j/a_j - b_i/a_i.
-        ratio = b / a
-        d = ratio[None, :] - ratio[:, None]
-        binding = d > 1e-12
-        k = min(1.0, float((plan.pair_room[binding] / d[binding]).min())) if binding.any() else 1.0
-        k = max(k, 0.0)
-        rp = k * b
-        # Step 2: the collective range that keeps every rotor inside the limits, and the thrust nearest.
-        c_low = float(((self.low - rp) / a).max())
-        c_high = max(c_low, float(((self.high - rp) / a).min()))
-        c = min(max(float(thrust_N), c_low), c_high)
-        base = c * a + rp
-        # Step 3: the largest fraction s in [0, 1] of the way from the yaw torque of base to the wanted one.
-        missing_yaw = float(tau[2]) - c * plan.collective_yaw - k * float(plan.roll_pitch_yaw @ tau[:2])
-        s = 1.0
-        if plan.yaw is None:
-            s = 0.0 if abs(missing_yaw) > 1e-12 else 1.0
-        else:
-            y = plan.yaw * missing_yaw
-            # Rotors the yaw part barely moves cannot limit it (and would overflow the division).
-            negligible = 1e-12 * self.high
-            up, down = y > negligible, y < -negligible
-            if up.any():
-                s = min(s, float(((self.high - base[up]) / y[up]).min()))
-            if down.any():
-                s = min(s, float(((self.low - base[down]) / y[down]).min()))
-            s = max(s, 0.0)
-            base = base + s * y
-        if plan.alive.size == self.n_rotors:
-            omega_sq = np.clip(base, self.low, self.high)
-        else:
-            omega_sq = np.full(self.n_rotors, self.low)
-            omega_sq[plan.alive] = np.clip(base, self.low, self.high)
+        tau_x, tau_y, tau_z = (float(value) for value in torque_B)
+        omega_sq = np.empty(plan.alive.size)
+        omega = np.empty(plan.alive.size)
+        c, k, s = kernel(_allocate_lanes)(
+            float(thrust_N), tau_x, tau_y, tau_z, plan.collective, plan.roll_pitch, plan.yaw, plan.has_yaw,
+            plan.collective_yaw, plan.roll_pitch_yaw, plan.pair_room, self.low, self.high, omega_sq, omega,
+        )  # fmt: skip
+        if plan.alive.size != self.n_rotors:
+            allocated = omega
+            omega = np.full(self.n_rotors, np.sqrt(self.low))
+            omega[plan.alive] = allocated
         if not plan.balanced:
             # The collective direction was lifted off a negative rotor: what the rotors give is not c.
-            delivered = float(plan.lift @ omega_sq[plan.alive])
-            return AllocationResult(np.sqrt(omega_sq), delivered, 0.0, s)
-        return AllocationResult(np.sqrt(omega_sq), c, k, s)
+            return AllocationResult(omega, float(plan.lift @ omega_sq), 0.0, s)
+        return AllocationResult(omega, c, k, s)
 
     def _plan_for(self, effectiveness: ArrayLike) -> _Plan:
         """The cached plan of an effectiveness vector, after checking it."""
@@ -212,10 +192,10 @@ class Allocator:
         # so that leaving it out is no jump in its command (quadratic, as its speed is a square root).
         fade = np.clip((effectiveness[alive] - DEAD_ROTOR_EFFECTIVENESS) / FADE_BAND, 0.0, 1.0)
         full = fade[:, None] * np.linalg.pinv(matrix * fade)  # (n, 4)
-        yaw = full[:, 3] if self._rank(alive, matrix) == 4 else None
+        has_yaw = self._rank(alive, matrix) == 4
         # Hover with no yaw torque at all, if every rotor then turns (a healthy airframe; the X8 that lost
         # one rotor); else yaw is left to step 3 (the hexarotor that lost one).
-        yaw_free = yaw is not None and bool(np.all(full[:, 0] > 1e-6 * full[:, 0].max(initial=0.0)))
+        yaw_free = has_yaw and bool(np.all(full[:, 0] > 1e-6 * full[:, 0].max(initial=0.0)))
         directions = full[:, :3] if yaw_free else fade[:, None] * np.linalg.pinv(matrix[:3] * fade)
         collective = directions[:, 0]
         # A rotor the collective does not lift cannot be balanced with the others at hover (module
@@ -228,8 +208,9 @@ class Allocator:
         return _Plan(
             alive=alive,
             collective=collective,
-            roll_pitch=directions[:, 1:3],
-            yaw=yaw,
+            roll_pitch=np.ascontiguousarray(directions[:, 1:3]),
+            yaw=full[:, 3].copy() if has_yaw else np.zeros(alive.size),
+            has_yaw=has_yaw,
             collective_yaw=float(matrix[3] @ collective),
             roll_pitch_yaw=matrix[3] @ directions[:, 1:3],
             pair_room=self.high / collective[None, :] - self.low / collective[:, None],
@@ -248,3 +229,72 @@ class Allocator:
             singular = np.linalg.svd(matrix / scale[:, None], compute_uv=False)
             self._ranks[key] = int(np.sum(singular > _RANK_TOLERANCE * singular.max(initial=1.0)))
         return self._ranks[key]
+
+
+def _allocate_lanes(
+    thrust: float,
+    tau_x: float,
+    tau_y: float,
+    tau_z: float,
+    a: FloatArray,
+    roll_pitch: FloatArray,
+    yaw: FloatArray,
+    has_yaw: bool,
+    collective_yaw: float,
+    roll_pitch_yaw: FloatArray,
+    pair_room: FloatArray,
+    low: float,
+    high: float,
+    omega_sq: FloatArray,
+    omega: FloatArray,
+) -> tuple[float, float, float]:
+    """Steps 1-3 of :meth:`Allocator.allocate` on a plan's directions: returns (c, k, s).
+
+    Writes omega^2 and omega of the allocated rotors. Compiled (model/jit.py): plain loops over them.
+    """
+    n = a.shape[0]
+    b = np.empty(n)  # omega^2 of the wanted roll/pitch torque
+    ratio = np.empty(n)
+    for i in range(n):
+        b[i] = roll_pitch[i, 0] * tau_x + roll_pitch[i, 1] * tau_y
+        ratio[i] = b[i] / a[i]
+    # Step 1: the largest k in [0, 1] such that some collective c gives lo <= c a + k b <= hi: for every
+    # pair (i, j), (lo - k b_i)/a_i <= (hi - k b_j)/a_j, i.e. k d_ij <= r_ij, d_ij = b_j/a_j - b_i/a_i.
+    k = 1.0
+    for i in range(n):
+        for j in range(n):
+            d = ratio[j] - ratio[i]
+            if d > 1e-12:
+                k = min(k, pair_room[i, j] / d)
+    k = max(k, 0.0)
+    # Step 2: the collective range that keeps every rotor inside the limits, and the thrust nearest.
+    c_low = -np.inf
+    c_high = np.inf
+    for i in range(n):
+        c_low = max(c_low, (low - k * b[i]) / a[i])
+        c_high = min(c_high, (high - k * b[i]) / a[i])
+    c_high = max(c_low, c_high)
+    c = min(max(thrust, c_low), c_high)
+    for i in range(n):
+        omega_sq[i] = c * a[i] + k * b[i]
+    # Step 3: the largest fraction s in [0, 1] of the way from the yaw torque of base to the wanted one.
+    missing_yaw = tau_z - c * collective_yaw - k * (roll_pitch_yaw[0] * tau_x + roll_pitch_yaw[1] * tau_y)
+    s = 1.0
+    if not has_yaw:
+        s = 0.0 if abs(missing_yaw) > 1e-12 else 1.0
+    else:
+        # Rotors the yaw part barely moves cannot limit it (and would overflow the division).
+        negligible = 1e-12 * high
+        for i in range(n):
+            y = yaw[i] * missing_yaw
+            if y > negligible:
+                s = min(s, (high - omega_sq[i]) / y)
+            elif y < -negligible:
+                s = min(s, (low - omega_sq[i]) / y)
+        s = max(s, 0.0)
+        for i in range(n):
+            omega_sq[i] += s * yaw[i] * missing_yaw
+    for i in range(n):
+        omega_sq[i] = min(max(omega_sq[i], low), high)
+        omega[i] = np.sqrt(omega_sq[i])
+    return c, k, s

@@ -44,13 +44,19 @@ CONFIDENT_STD = 0.1
 # speed (up to about 0.3 in the X8 campaign, bench/bench_fault_tolerance.py), and a rotor that gives at
 # least half its thrust is worth allocating.
 RECOVERED_EFFECTIVENESS = 0.5
+# Within this of its target the output is taken as there (set to it): the first-order approach would
+# otherwise stop a few rounding steps short and never settle. 1e-12 of a rotor's thrust is nothing.
+SETTLED_TOLERANCE = 1e-12
 
 
 class EffectivenessFilter:
     """Confident estimates -> a smooth effectiveness vector per rotor (module docstring).
 
     ``update(t_s, estimate, std)`` with the identifier's (N,) estimate and std (either None: nothing
-    known) returns the (N,) effectiveness for the allocator, starting from all 1 (healthy).
+    known) returns the (N,) effectiveness for the allocator, starting from all 1 (healthy). Giving the same
+    diagnosis again does what giving None does (the stopped latch is idempotent): a caller that runs the
+    filter every control period gives a diagnosis when it is new and None in between, which costs almost
+    nothing once the output has settled on its target (:attr:`settled`).
     """
 
     # Time constant [s] of the approach to a new target. Several times the motor time constant (0.03 s
@@ -99,6 +105,12 @@ class EffectivenessFilter:
         self._target = np.ones(self.n_rotors)
         self._stopped = np.zeros(self.n_rotors, dtype=bool)
         self._last_t: float | None = None
+        self._settled = True
+
+    @property
+    def settled(self) -> bool:
+        """Whether the output is at its target: updates without a new diagnosis leave it as it is."""
+        return self._settled
 
     @property
     def effectiveness(self) -> FloatArray:
@@ -133,11 +145,17 @@ class EffectivenessFilter:
         """The effectiveness for the allocator at time ``t_s`` [s], given the latest diagnosis."""
         if not math.isfinite(t_s):
             raise ValueError(f"t_s must be finite, got {t_s}")
+        if estimate is None and std is None and self._settled:
+            self._last_t = t_s
+            return self._effectiveness.copy()
         target = self.target(estimate, std)
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
         time_constant = np.where(self._stopped, self.stop_time_constant_s, self.time_constant_s)
         self._effectiveness += (target - self._effectiveness) * -np.expm1(-dt / time_constant)
+        self._settled = bool(np.all(np.abs(target - self._effectiveness) <= SETTLED_TOLERANCE))
+        if self._settled:
+            self._effectiveness[:] = target
         return self._effectiveness.copy()
 
     def _vector(self, values: ArrayLike, name: str) -> FloatArray:

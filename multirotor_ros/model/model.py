@@ -167,15 +167,15 @@ class Model:
     def check_command(self, u: ArrayLike, batch: int) -> FloatArray:
         """Rotor-speed commands as (B, N); raises ValueError naming the vehicle and rotor if not finite."""
         command = np.asarray(u, dtype=float)
-        if command.shape[-1:] != (self.n_rotors,):
-            raise ValueError(
-                f"rotor command has {command.shape[-1:]} entries, "
-                f"{self.airframe.name} has {self.n_rotors} rotors"
-            )
-        command = np.broadcast_to(command, (batch, self.n_rotors))
-        bad = ~np.isfinite(command)
-        if bad.any():
-            vehicle, rotor = np.argwhere(bad)[0]
+        if command.shape != (batch, self.n_rotors):  # broadcast_to costs more than the rest: only if needed
+            if command.shape[-1:] != (self.n_rotors,):
+                raise ValueError(
+                    f"rotor command has {command.shape[-1:]} entries, "
+                    f"{self.airframe.name} has {self.n_rotors} rotors"
+                )
+            command = np.broadcast_to(command, (batch, self.n_rotors))
+        if not np.isfinite(command).all():
+            vehicle, rotor = np.argwhere(~np.isfinite(command))[0]
             raise ValueError(
                 f"rotor command is not finite: vehicle {vehicle}, "
                 f"rotor_{rotor + 1} = {command[vehicle, rotor]}"

@@ -21,7 +21,11 @@ running before the node spun (7 controllers of 12 joining a running simulator re
 this one is made last, just before the spin). The clock and the
 odometry of one instant come on two topics in either order: on simulated time a tick whose odometry is
 due but not yet here waits for it (simulation/pacing.py ``StateForTick``), so that in lockstep every
-command is computed from the state of its own instant and a flight is the same on any machine.
+command is computed from the state of its own instant and a flight is the same on any machine; and a
+state stamped at the next tick, with the clock heard one period before it at most, is that tick at
+once: its simulator publishes the /clock of that instant right after it, and waiting for it would put
+one more delivery into every period of a lockstep loop (the /clock that follows then finds the tick
+done).
 A lockstep simulator that waits resends the state it stands at; the same state again, with a command
 already sent for its instant, means that command was lost (a burst of other messages on
 ``motor_speed_cmd`` can overflow the simulator's queue), so it is sent again: without that the loop
@@ -130,6 +134,9 @@ REALLOCATION_NOTICE = 0.05
 # Yaw authority counts as given up below this share of the wanted yaw torque (a brief saturation of a
 # few percent in a transient is no news).
 YAW_GIVEN_UP_FRACTION = 0.9
+# The filter's input when no diagnosis is known, or none new since the last period (one object, so that
+# it is recognised as given already).
+NOTHING_KNOWN: tuple[None, None] = (None, None)
 
 
 def controller_parameters(gains: dict[str, float]) -> list[NodeParameter]:
@@ -256,6 +263,7 @@ class ControllerNode(Node):
         # A confident healthy diagnosis: what brings the filter back to the nominal allocation.
         self._all_healthy = (np.ones(self.airframe.n_rotors), np.zeros(self.airframe.n_rotors))
         self._diagnosis: tuple[FloatArray, FloatArray] | None = None  # latest accepted (estimate, std)
+        self._diagnosis_given: tuple[Any, Any] | None = None  # the last one given to the filter
         self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
         self._yaw_warned = False
         self._last_command: JointState | None = None
@@ -307,12 +315,29 @@ class ControllerNode(Node):
             waiting_tick_ns = self._state_for_tick.state(stamp_ns)
             if waiting_tick_ns is not None:
                 self._control(waiting_tick_ns)
+            elif self._state_of_next_tick(stamp_ns):
+                self._clock_ticks.clock(stamp_ns)
+                self._tick(stamp_ns)
             elif (
                 resent
                 and self._last_command is not None
                 and stamp_to_ns(self._last_command.header.stamp) == stamp_ns
             ):
                 self._command_pub.publish(self._last_command)
+
+    def _state_of_next_tick(self, stamp_ns: int) -> bool:
+        """Whether a state is stamped at the next tick, with the clock heard at most one period before it.
+
+        That state is the tick (module docstring): its simulator has reached the tick's time and publishes
+        the /clock that says so right after it. The one-period bound keeps a state stamped ahead of its
+        simulator (a stray publisher) from moving the ticks off the clock.
+        """
+        clock_ns = self.time.simulated_now_ns
+        return (
+            clock_ns is not None
+            and stamp_ns == self._clock_ticks.next_ns
+            and stamp_ns - clock_ns <= self._clock_ticks.period_ns
+        )
 
     def _on_setpoint(self, message: PoseStamped) -> None:
         frame = message.header.frame_id
@@ -349,14 +374,22 @@ class ControllerNode(Node):
 
     def _effectiveness(self, t_s: float) -> FloatArray:
         """The effectiveness the allocator uses now (module docstring); logs when reallocation starts/ends."""
-        diagnosis: tuple[FloatArray | None, FloatArray | None]
+        diagnosis: tuple[FloatArray, FloatArray] | tuple[None, None]
         if not self._fault_tolerant:
             diagnosis = self._all_healthy
         elif self._diagnosis is None:
-            diagnosis = (None, None)
+            diagnosis = NOTHING_KNOWN
         else:
             diagnosis = self._diagnosis
+        unchanged = diagnosis is self._diagnosis_given and self._effectiveness_filter.settled
+        if diagnosis is self._diagnosis_given:
+            # Given already: the filter holds it, at almost no cost once settled (EffectivenessFilter).
+            diagnosis = NOTHING_KNOWN
+        else:
+            self._diagnosis_given = diagnosis
         effectiveness = self._effectiveness_filter.update(t_s, *diagnosis)
+        if unchanged:
+            return effectiveness
         reallocated = [int(k) for k in np.flatnonzero(effectiveness < 1.0 - REALLOCATION_NOTICE)]
         if reallocated != self._reallocated:
             self._reallocated = reallocated

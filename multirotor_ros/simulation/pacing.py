@@ -220,6 +220,11 @@ class ClockTicks:
         self._next_ns = period_ns
         self._newest_ns: int | None = None
 
+    @property
+    def next_ns(self) -> int:
+        """When the next tick is due [ns]."""
+        return self._next_ns
+
     def clock(self, now_ns: int) -> bool:
         """The clock reads ``now_ns``: True when a tick is due (then the next one is scheduled)."""
         if self._newest_ns is not None and now_ns < self._newest_ns:

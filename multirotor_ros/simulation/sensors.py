@@ -33,12 +33,13 @@ vehicle's result depend on how many others share the arrays.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
+from multirotor_ros.model.jit import kernel
 from multirotor_ros.model.rotation import FloatArray
 
 DEG = math.pi / 180.0
@@ -145,22 +146,8 @@ def standard_normals(rngs: Sequence[np.random.Generator], count: int) -> FloatAr
     return out
 
 
-# Two small kernels do the quaternion arithmetic of every vehicle in one call: in numpy each of their
-# ~40 operations would cost a microsecond of call overhead for arrays of a few vehicles. They are
-# compiled by numba on first use (numba is imported only then: the nodes that merely read this module's
-# types never pay its start-up) and cached on disk; each vehicle is computed by the same scalar code,
-# whatever the number of vehicles.
-_KERNELS: dict[str, Callable[..., None]] = {}
-
-
-def _kernel(function: Callable[..., None]) -> Callable[..., None]:
-    """``function`` compiled by numba (once per process; from numba's disk cache after the first)."""
-    compiled = _KERNELS.get(function.__name__)
-    if compiled is None:
-        from numba import njit
-
-        compiled = _KERNELS[function.__name__] = njit(cache=True, error_model="numpy")(function)
-    return compiled
+# Two small kernels (model/jit.py) do the quaternion arithmetic of every vehicle in one call; each vehicle
+# is computed by the same scalar code, whatever the number of vehicles.
 
 
 def _imu_lanes(
@@ -231,7 +218,7 @@ def _turned_lanes(q_WB: FloatArray, angles_rad: FloatArray, out: FloatArray) -> 
 def _turned(q_WB: FloatArray, angles_rad: FloatArray) -> FloatArray:
     """(V, 4) unit attitudes q_WB (V, 4) turned by small ZYX angles (V, 3)."""
     out = np.empty((q_WB.shape[0], 4))
-    _kernel(_turned_lanes)(q_WB, angles_rad, out)
+    kernel(_turned_lanes)(q_WB, angles_rad, out)
     return out
 
 
@@ -304,7 +291,7 @@ class Imu:
         f_B, w_B, angles = np.empty((3, *a_WB_W.shape))
         # New bias arrays each sample: a reading handed out earlier keeps the biases of its time.
         self.accel_bias, self.gyro_bias = self.accel_bias.copy(), self.gyro_bias.copy()
-        _kernel(_imu_lanes)(
+        kernel(_imu_lanes)(
             q_WB,
             a_WB_W,
             w_WB_B,
