@@ -21,6 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from nav_msgs.msg import Odometry
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import serialize_message
 from ros_harness import RosProbe
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -34,6 +35,7 @@ from test_nodes_sim_control import (
 )
 
 from multirotor_ros.cli.fuzz import default_valid_message, flood, has_non_finite, hostile_messages
+from multirotor_ros.nodes.cdr import OdometryFields, odometry_fields_from_cdr
 from multirotor_ros.nodes.controller import OdometryCheck
 from multirotor_ros.nodes.messages import stamp_from_ns, stamp_to_ns
 from multirotor_ros.plausibility import NS_PER_S, StateLimits
@@ -54,6 +56,13 @@ def odometry(stamp_ns: int, x: float = 0.0, **twist: float) -> Odometry:
     return message
 
 
+def received(message: Odometry) -> OdometryFields:
+    """What the controller reads of an Odometry it receives (serialised, read by nodes/cdr.py)."""
+    fields = odometry_fields_from_cdr(serialize_message(message))
+    assert not isinstance(fields, Refusal)
+    return fields
+
+
 def refused(result: object) -> str:
     assert isinstance(result, Refusal), result
     return result.reason
@@ -64,46 +73,46 @@ def refused(result: object) -> str:
 
 def test_a_huge_body_rate_is_refused_and_the_next_odometry_accepted() -> None:
     check = OdometryCheck(forget_after_ns=FORGET_AFTER_NS)
-    assert not isinstance(check.accept(odometry(NOW_NS), NOW_NS), Refusal)
-    assert refused(check.accept(odometry(NOW_NS + 1000, angular_z=1e308), NOW_NS + 1000)) == (
+    assert not isinstance(check.accept(received(odometry(NOW_NS)), NOW_NS), Refusal)
+    assert refused(check.accept(received(odometry(NOW_NS + 1000, angular_z=1e308)), NOW_NS + 1000)) == (
         "implausible body rate"
     )
-    assert refused(check.accept(odometry(NOW_NS + 2000, linear_x=1e39), NOW_NS + 2000)) == (
+    assert refused(check.accept(received(odometry(NOW_NS + 2000, linear_x=1e39)), NOW_NS + 2000)) == (
         "implausible velocity"
     )
-    assert not isinstance(check.accept(odometry(NOW_NS + 3000), NOW_NS + 3000), Refusal)
+    assert not isinstance(check.accept(received(odometry(NOW_NS + 3000)), NOW_NS + 3000), Refusal)
 
 
 @pytest.mark.parametrize("stamp_ns", [NOW_NS + 3600 * NS_PER_S, (2**31 - 1) * NS_PER_S])
 def test_a_future_stamp_is_refused_alone(stamp_ns: int) -> None:
     check = OdometryCheck(forget_after_ns=FORGET_AFTER_NS)
-    assert not isinstance(check.accept(odometry(NOW_NS), NOW_NS), Refusal)
-    assert refused(check.accept(odometry(stamp_ns), NOW_NS + 1000)) == "stamp in the future"
+    assert not isinstance(check.accept(received(odometry(NOW_NS)), NOW_NS), Refusal)
+    assert refused(check.accept(received(odometry(stamp_ns)), NOW_NS + 1000)) == "stamp in the future"
     # It was not kept as the newest: the next valid odometry is accepted, and the one after it.
-    assert not isinstance(check.accept(odometry(NOW_NS + 4_000_000), NOW_NS + 4_000_000), Refusal)
-    assert not isinstance(check.accept(odometry(NOW_NS + 8_000_000), NOW_NS + 8_000_000), Refusal)
+    for later_ns in (NOW_NS + 4_000_000, NOW_NS + 8_000_000):
+        assert not isinstance(check.accept(received(odometry(later_ns)), later_ns), Refusal)
 
 
 def test_a_zero_stamp_is_unstamped_except_when_simulated_time_has_just_started() -> None:
-    assert not isinstance(OdometryCheck(forget_after_ns=FORGET_AFTER_NS).accept(odometry(0), 0), Refusal)
+    just_started = OdometryCheck(forget_after_ns=FORGET_AFTER_NS)
+    assert not isinstance(just_started.accept(received(odometry(0)), 0), Refusal)
     check = OdometryCheck(forget_after_ns=FORGET_AFTER_NS)
-    assert refused(check.accept(odometry(0), NOW_NS)) == "unstamped odometry"
-    assert not isinstance(check.accept(odometry(NOW_NS), NOW_NS), Refusal)
+    assert refused(check.accept(received(odometry(0)), NOW_NS)) == "unstamped odometry"
+    assert not isinstance(check.accept(received(odometry(NOW_NS)), NOW_NS), Refusal)
 
 
 def test_a_jump_or_a_new_frame_is_refused_until_the_odometry_would_be_stale() -> None:
     check = OdometryCheck(forget_after_ns=FORGET_AFTER_NS)
-    assert not isinstance(check.accept(odometry(NOW_NS), NOW_NS), Refusal)
+    assert not isinstance(check.accept(received(odometry(NOW_NS)), NOW_NS), Refusal)
     later_ns = NOW_NS + 10_000_000
-    assert (
-        refused(check.accept(odometry(later_ns, x=100.0), later_ns)) == "implausible odometry position jump"
-    )
+    jumped = check.accept(received(odometry(later_ns, x=100.0)), later_ns)
+    assert refused(jumped) == "implausible odometry position jump"
     moved = odometry(later_ns)
     moved.header.frame_id = "map"
-    assert refused(check.accept(moved, later_ns)) == "wrong frame"
+    assert refused(check.accept(received(moved), later_ns)) == "wrong frame"
     # After odom_timeout_s without accepted odometry, a re-localised source is taken as it is.
     stale_ns = NOW_NS + FORGET_AFTER_NS + 1
-    assert not isinstance(check.accept(odometry(stale_ns, x=100.0), stale_ns), Refusal)
+    assert not isinstance(check.accept(received(odometry(stale_ns, x=100.0)), stale_ns), Refusal)
 
 
 @settings(max_examples=30, deadline=None)
@@ -113,10 +122,10 @@ def test_whatever_the_check_accepts_is_plausible(seed: int) -> None:
     limits = StateLimits()
     now_ns = NOW_NS
     # The first odometry has nothing to be compared with: a valid one, as from a running estimator.
-    assert not isinstance(check.accept(odometry(now_ns), now_ns), Refusal)
+    assert not isinstance(check.accept(received(odometry(now_ns)), now_ns), Refusal)
     for item in hostile_messages("odometry", 200, seed):
         now_ns += 4_000_000
-        result = check.accept(item.stamped(now_ns), now_ns)
+        result = check.accept(received(item.stamped(now_ns)), now_ns)
         if isinstance(result, Refusal):
             assert result.reason and "np." not in result.detail
             continue

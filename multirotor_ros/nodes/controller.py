@@ -111,6 +111,7 @@ from multirotor_ros.control.law import SaturationController
 from multirotor_ros.control.setpoint_queue import SETPOINT_QUEUE_LENGTH, SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
+from multirotor_ros.nodes.cdr import OdometryFields, odometry_fields_from_cdr
 from multirotor_ros.nodes.clock import NodeTime, steady_clock
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
 from multirotor_ros.nodes.entry import run_node
@@ -119,7 +120,7 @@ from multirotor_ros.nodes.messages import (
     setpoint_from_pose,
     stamp_from_ns,
     stamp_to_ns,
-    state_from_odometry,
+    state_from_odometry_values,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.reset import ResetFence, frame_refusal, offer_reset
@@ -178,23 +179,24 @@ class OdometryCheck:
     # Arrival on this node's clock [ns], (frame_id, child_frame_id) and p_WB_W of the last accepted one.
     _last: tuple[int, tuple[str, str], FloatArray] | None = None
 
-    def accept(self, message: Odometry, now_ns: int) -> State | Refusal:
-        """The state of ``message`` if it is plausible at ``now_ns`` (this node's clock), else why not."""
-        state = state_from_odometry(message)
+    def accept(self, odometry: OdometryFields, now_ns: int) -> State | Refusal:
+        """The state of an odometry if it is plausible at ``now_ns`` (this node's clock), else why not."""
+        state = state_from_odometry_values(odometry.values)
         if isinstance(state, Refusal):
             return state
         p_WB_W, v_WB_W, _, w_WB_B = state
-        stamp_ns = stamp_to_ns(message.header.stamp)
+        stamp_ns = odometry.stamp_ns
+        frames = (odometry.frame_id, odometry.child_frame_id)
         refusal = (
             self.limits.check(p_WB_W=p_WB_W, v_WB_W=v_WB_W, w_WB_B=w_WB_B, what="odometry")
             or self._unstamped(stamp_ns, now_ns)
-            or self._moved(now_ns, (message.header.frame_id, message.child_frame_id), p_WB_W)
+            or self._moved(now_ns, frames, p_WB_W)
             # Last: the gate remembers the stamp it accepts, and a refused message must leave no trace.
             or self.gate.check(stamp_ns, now_ns, "odometry")
         )
         if refusal is not None:
             return refusal
-        self._last = (now_ns, (message.header.frame_id, message.child_frame_id), p_WB_W)
+        self._last = (now_ns, frames, p_WB_W)
         return state
 
     def _unstamped(self, stamp_ns: int, now_ns: int) -> Refusal | None:
@@ -271,7 +273,8 @@ class ControllerNode(Node):
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
-        self.create_subscription(Odometry, "odom", self._on_odom, 1)
+        # Serialised: read by nodes/cdr.py in a fraction of what rclpy's Odometry object costs.
+        self.create_subscription(Odometry, "odom", self._on_odom, 1, raw=True)
         # As deep as the schedule: a mission sent at once must not lose its first setpoints to its last.
         self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, SETPOINT_QUEUE_LENGTH)
         self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
@@ -294,23 +297,27 @@ class ControllerNode(Node):
             f"{self.airframe.name}: seed 1 saturation law at {self.law.gains.rate_hz:g} Hz"
         )
 
-    def _on_odom(self, message: Odometry) -> None:
+    def _on_odom(self, data: bytes) -> None:
         if not self.time.running:
             # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
             return
-        now_ns = self.time.now_ns()
-        if self._reset_fence.stale(stamp_to_ns(message.header.stamp), now_ns):
+        odometry = odometry_fields_from_cdr(data)
+        if isinstance(odometry, Refusal):
+            self._odom_refusals.refuse(odometry.reason, odometry.detail)
             return
-        state = self._odometry_check.accept(message, now_ns)
+        now_ns = self.time.now_ns()
+        if self._reset_fence.stale(odometry.stamp_ns, now_ns):
+            return
+        state = self._odometry_check.accept(odometry, now_ns)
         if isinstance(state, Refusal):
             self._odom_refusals.refuse(state.reason, state.detail)
             return
         self._state, self._state_received_ns = state, now_ns
-        self._odom_frame = message.header.frame_id
+        self._odom_frame = odometry.frame_id
         if self._target is None:
             self._target = (state[0].copy(), float(quat_to_euler(state[2])[2]))
         if self.time.simulated:
-            stamp_ns = stamp_to_ns(message.header.stamp)
+            stamp_ns = odometry.stamp_ns
             resent = stamp_ns == self._state_for_tick.newest_ns
             waiting_tick_ns = self._state_for_tick.state(stamp_ns)
             if waiting_tick_ns is not None:

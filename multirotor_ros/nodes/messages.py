@@ -9,7 +9,9 @@ Rotor speeds (sensor_msgs/JointState)
 
 State (pose in world ENU; the twist of Odometry in body FLU, as REP-105 says)
     ``odometry_message(x, stamp, frame_id, child_frame_id)`` of the flat model state
-    (multirotor_ros.model.state layout); ``state_from_odometry(msg) -> (p_WB_W, v_WB_W, q_WB, w_WB_B)``.
+    (multirotor_ros.model.state layout); ``state_from_odometry(msg) -> (p_WB_W, v_WB_W, q_WB, w_WB_B)``,
+    the same of its 13 values (``odometry_values``, or read from the wire: nodes/cdr.py) with
+    ``state_from_odometry_values``.
     ``pose_message(stamp, frame_id, p_WB_W, q_WB)``; ``pose_from_message(msg) -> (p_WB_W, q_WB)``.
     ``setpoint_from_pose(msg) -> (p_W, yaw)``: a ``setpoint`` PoseStamped as position and yaw.
 
@@ -263,15 +265,27 @@ def odometry_message(
 
 def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
     """(p_WB_W, v_WB_W, q_WB, w_WB_B) of an Odometry (twist in body FLU), or a Refusal."""
+    return state_from_odometry_values(odometry_values(message))
+
+
+def odometry_values(message: Any) -> tuple[float, ...]:
+    """An Odometry's pose and twist as 13 floats, in the message's order (see state_from_odometry_values)."""
     pose, twist = message.pose.pose, message.twist.twist
     position, o, linear, angular = pose.position, pose.orientation, twist.linear, twist.angular
-    px, py, pz = position.x, position.y, position.z
-    w, qx, qy, qz = o.w, o.x, o.y, o.z
-    bx, by, bz = linear.x, linear.y, linear.z
-    wx, wy, wz = angular.x, angular.y, angular.z
-    norm = _unit_norm(w, qx, qy, qz) if _finite(px, py, pz, w, qx, qy, qz, bx, by, bz, wx, wy, wz) else None
+    return (
+        position.x, position.y, position.z, o.x, o.y, o.z, o.w,
+        linear.x, linear.y, linear.z, angular.x, angular.y, angular.z,
+    )  # fmt: skip
+
+
+def state_from_odometry_values(
+    values: tuple[float, ...],
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
+    """state_from_odometry of position, orientation (x, y, z, w), body linear and angular velocity."""
+    px, py, pz, qx, qy, qz, w, bx, by, bz, wx, wy, wz = values
+    norm = _unit_norm(w, qx, qy, qz) if _finite(*values) else None
     if norm is None:
-        return _checked_state(message)
+        return _checked_state(values)
     w, qx, qy, qz = w / norm, qx / norm, qy / norm, qz / norm
     # v_W = R v_B, R the rotation matrix of the unit quaternion (model/rotation.py quat_to_matrix).
     v_W = (
@@ -282,12 +296,14 @@ def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArra
     return np.array((px, py, pz)), np.array(v_W), np.array((w, qx, qy, qz)), np.array((wx, wy, wz))
 
 
-def _checked_state(message: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
-    """state_from_odometry of any message, with the reason of a refusal."""
-    p = vector_from_msg(message.pose.pose.position)
-    q = quaternion_from_msg(message.pose.pose.orientation)
-    v_B = vector_from_msg(message.twist.twist.linear)
-    w_B = vector_from_msg(message.twist.twist.angular)
+def _checked_state(
+    values: tuple[float, ...],
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:
+    """state_from_odometry_values of any values, with the reason of a refusal."""
+    p = np.array(values[0:3], dtype=float)
+    q = ros_quat_to_wxyz(*values[3:7])
+    v_B = np.array(values[7:10], dtype=float)
+    w_B = np.array(values[10:13], dtype=float)
     if not all(np.all(np.isfinite(a)) for a in (p, q, v_B, w_B)):
         return Refusal(
             "non-finite odometry",

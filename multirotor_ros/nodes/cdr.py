@@ -1,0 +1,102 @@
+"""Odometry read from its serialised form (CDR), without rclpy's conversion to message objects.
+
+A subscription with ``raw=True`` gets the bytes the middleware received. rclpy's own reading of an
+Odometry (deserialisation to its C struct, then a Python object per nested message and a numpy array per
+covariance) costs about 45 us, the controller's largest cost per control period, while it needs 13 numbers,
+a stamp and two frame names: :func:`odometry_fields_from_cdr` reads those in about 1 us.
+
+The fast path reads plain little-endian CDR (encapsulation 0x0001, what Fast DDS sends for ROS types):
+the header's stamp (int32 sec, uint32 nanosec) and frame_id, child_frame_id, then, aligned to 8 bytes
+from the start of the payload, the pose (7 doubles), its covariance (36), the twist (6) and its
+covariance (36). Strings are a uint32 length counting their terminating NUL, then the bytes. Anything
+else (big-endian, XCDR2, a length that does not fit) goes to rclpy's deserialiser, which reads every
+encoding the middleware does and raises on bytes that are no Odometry: those are refused with the reason.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any, NamedTuple
+
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message
+
+from multirotor_ros.nodes.messages import odometry_values, stamp_to_ns
+from multirotor_ros.refusals import Refusal
+
+_LITTLE_ENDIAN_CDR = b"\x00\x01"
+_ENCAPSULATION_BYTES = 4  # alignment counts from the end of the encapsulation header
+_STAMP = struct.Struct("<iI")
+_LENGTH = struct.Struct("<I")
+_POSE = struct.Struct("<7d")  # position (x, y, z), orientation (x, y, z, w)
+_TWIST = struct.Struct("<6d")  # linear, angular
+_COVARIANCE_BYTES = 36 * 8
+_AFTER_FRAMES_BYTES = _POSE.size + _COVARIANCE_BYTES + _TWIST.size + _COVARIANCE_BYTES
+
+
+class OdometryFields(NamedTuple):
+    """What a controller reads of an Odometry."""
+
+    stamp_ns: int
+    frame_id: str
+    child_frame_id: str
+    # Position, orientation (x, y, z, w), body twist (linear, angular): state_from_odometry_values.
+    values: tuple[float, ...]
+
+
+def odometry_fields(message: Any) -> OdometryFields:
+    """The fields of an Odometry message object."""
+    return OdometryFields(
+        stamp_to_ns(message.header.stamp),
+        message.header.frame_id,
+        message.child_frame_id,
+        odometry_values(message),
+    )
+
+
+def odometry_fields_from_cdr(data: bytes) -> OdometryFields | Refusal:
+    """The fields of a serialised Odometry (module docstring), or why it cannot be read."""
+    fields = _plain_little_endian(data)
+    if fields is not None:
+        return fields
+    try:
+        message = deserialize_message(data, Odometry)
+    except Exception as error:  # whatever rclpy's deserialiser says of bytes it cannot read
+        return Refusal("malformed odometry", f"{len(data)} bytes that are no Odometry: {error}")
+    return odometry_fields(message)
+
+
+def _plain_little_endian(data: bytes) -> OdometryFields | None:
+    if data[:2] != _LITTLE_ENDIAN_CDR or len(data) < _ENCAPSULATION_BYTES + _STAMP.size:
+        return None
+    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
+    frame_id, offset = _string(data, _ENCAPSULATION_BYTES + _STAMP.size)
+    if frame_id is None:
+        return None
+    child_frame_id, offset = _string(data, offset + _padding(offset, 4))
+    if child_frame_id is None:
+        return None
+    offset += _padding(offset, 8)
+    if len(data) < offset + _AFTER_FRAMES_BYTES:
+        return None
+    pose = _POSE.unpack_from(data, offset)
+    twist = _TWIST.unpack_from(data, offset + _POSE.size + _COVARIANCE_BYTES)
+    return OdometryFields(sec * 1_000_000_000 + nanosec, frame_id, child_frame_id, pose + twist)
+
+
+def _padding(offset: int, alignment: int) -> int:
+    return -(offset - _ENCAPSULATION_BYTES) % alignment
+
+
+def _string(data: bytes, offset: int) -> tuple[str | None, int]:
+    """A CDR string at ``offset`` and the offset after it; None where the bytes are no such string."""
+    if len(data) < offset + _LENGTH.size:
+        return None, offset
+    (length,) = _LENGTH.unpack_from(data, offset)
+    end = offset + _LENGTH.size + length
+    if length == 0 or end > len(data) or data[end - 1] != 0:
+        return None, offset
+    try:
+        return data[offset + _LENGTH.size : end - 1].decode(), end
+    except UnicodeDecodeError:
+        return None, offset

@@ -1,0 +1,94 @@
+"""Odometry read from its serialised form (nodes/cdr.py) against rclpy's own reading of the same bytes."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message, serialize_message
+
+from multirotor_ros.nodes import cdr
+from multirotor_ros.nodes.cdr import odometry_fields, odometry_fields_from_cdr
+from multirotor_ros.refusals import Refusal
+
+FRAMES = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=12)
+VALUES = st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=13, max_size=13)
+
+
+def _odometry(frame_id: str, child_frame_id: str, values: list[float], sec: int, nanosec: int) -> Odometry:
+    message = Odometry()
+    message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+    message.header.frame_id, message.child_frame_id = frame_id, child_frame_id
+    pose, twist = message.pose.pose, message.twist.twist
+    for target, fields, chunk in (
+        (pose.position, "xyz", values[0:3]),
+        (pose.orientation, "xyzw", values[3:7]),
+        (twist.linear, "xyz", values[7:10]),
+        (twist.angular, "xyz", values[10:13]),
+    ):
+        for name, value in zip(fields, chunk, strict=True):
+            setattr(target, name, value)
+    message.pose.covariance[:] = 1.5  # read past, whatever they hold
+    message.twist.covariance[:] = -2.5
+    return message
+
+
+def _same(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return all(x == y or (math.isnan(x) and math.isnan(y)) for x, y in zip(a, b, strict=True))
+
+
+@given(
+    frame_id=FRAMES,
+    child_frame_id=FRAMES,
+    values=VALUES,
+    sec=st.integers(-(2**31), 2**31 - 1),
+    nanosec=st.integers(0, 2**32 - 1),
+)
+@settings(max_examples=300)
+def test_the_serialised_odometry_reads_as_rclpys_message_does(
+    frame_id: str, child_frame_id: str, values: list[float], sec: int, nanosec: int
+) -> None:
+    message = _odometry(frame_id, child_frame_id, values, sec, nanosec)
+    data = serialize_message(message)
+    assert cdr._plain_little_endian(data) is not None  # the fast path, not the fallback
+    read, expected = odometry_fields_from_cdr(data), odometry_fields(message)
+    assert not isinstance(read, Refusal)
+    assert read[:3] == expected[:3] and _same(read.values, expected.values)
+
+
+def _rclpys_reading(data: bytes) -> cdr.OdometryFields | None:
+    try:
+        return odometry_fields(deserialize_message(data, Odometry))
+    except Exception:  # what rclpy raises for bytes it cannot read
+        return None
+
+
+VALID = serialize_message(_odometry("odom", "base_link", [0.5] * 13, 7, 8))
+
+
+@given(
+    cut=st.integers(0, len(VALID)),
+    changes=st.lists(st.tuples(st.integers(0, len(VALID) - 1), st.integers(0, 255)), max_size=4),
+)
+@settings(max_examples=500)
+def test_damaged_bytes_are_refused_with_the_reason_or_read_as_rclpy_reads_them(cut: int, changes) -> None:
+    data = bytearray(VALID[:cut])
+    for index, value in changes:
+        if index < len(data):
+            data[index] = value
+    read, expected = odometry_fields_from_cdr(bytes(data)), _rclpys_reading(bytes(data))
+    if isinstance(read, Refusal):
+        assert expected is None
+        assert read.reason == "malformed odometry" and f"{len(data)} bytes" in read.detail
+    else:
+        assert expected is not None and read[:3] == expected[:3] and _same(read.values, expected.values)
+
+
+def test_a_truncated_or_foreign_encoding_goes_to_rclpys_reader() -> None:
+    data = serialize_message(_odometry("odom", "base_link", [0.0] * 6 + [1.0] + [0.0] * 6, 3, 4))
+    assert isinstance(odometry_fields_from_cdr(data[:-8]), Refusal)  # cut in the twist's covariance
+    assert cdr._plain_little_endian(b"\x00\x00" + data[2:]) is None  # big-endian: not read here
+    long_string = data[:12] + (10_000).to_bytes(4, "little") + data[16:]
+    assert isinstance(odometry_fields_from_cdr(long_string), Refusal)
