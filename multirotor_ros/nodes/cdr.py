@@ -1,4 +1,4 @@
-"""Odometry read from its serialised form (CDR), without rclpy's conversion to message objects.
+"""Odometry read from and written in its serialised form (CDR), without rclpy's message objects.
 
 A subscription with ``raw=True`` gets the bytes the middleware received. rclpy's own reading of an
 Odometry (deserialisation to its C struct, then a Python object per nested message and a numpy array per
@@ -11,6 +11,11 @@ from the start of the payload, the pose (7 doubles), its covariance (36), the tw
 covariance (36). Strings are a uint32 length counting their terminating NUL, then the bytes. Anything
 else (big-endian, XCDR2, a length that does not fit) goes to rclpy's deserialiser, which reads every
 encoding the middleware does and raises on bytes that are no Odometry: those are refused with the reason.
+
+:class:`OdometryWriter` is the other way: a publisher given bytes publishes them as they are (rclpy's
+``publish`` of a message object converts it and serialises it, about 10 us for an Odometry), so the
+simulator keeps each vehicle's Odometry serialised once, with its frames and covariances, and writes the
+stamp, pose and twist of each state into a copy at the offsets this reader finds.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import struct
 from typing import Any, NamedTuple
 
 from nav_msgs.msg import Odometry
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 
 from multirotor_ros.nodes.messages import odometry_values, stamp_to_ns
 from multirotor_ros.refusals import Refusal
@@ -66,22 +71,47 @@ def odometry_fields_from_cdr(data: bytes) -> OdometryFields | Refusal:
     return odometry_fields(message)
 
 
+class OdometryWriter:
+    """Serialised Odometry messages of one template (frames, covariances) with a new stamp, pose and twist."""
+
+    def __init__(self, template: Odometry):
+        self._data = bytearray(serialize_message(template))
+        frames = _frames(bytes(self._data))
+        if frames is None:  # Fast DDS serialises ROS types as plain little-endian CDR
+            raise ValueError("rclpy did not serialise the Odometry as plain little-endian CDR")
+        self._pose_offset = frames[2]
+        self._twist_offset = self._pose_offset + _POSE.size + _COVARIANCE_BYTES
+
+    def write(self, stamp: Any, values: tuple[float, ...]) -> bytes:
+        """The template stamped ``stamp`` (builtin_interfaces/Time) with the 13 values of odometry_values."""
+        _STAMP.pack_into(self._data, _ENCAPSULATION_BYTES, stamp.sec, stamp.nanosec)
+        _POSE.pack_into(self._data, self._pose_offset, *values[:7])
+        _TWIST.pack_into(self._data, self._twist_offset, *values[7:])
+        return bytes(self._data)
+
+
 def _plain_little_endian(data: bytes) -> OdometryFields | None:
+    frames = _frames(data)
+    if frames is None or len(data) < frames[2] + _AFTER_FRAMES_BYTES:
+        return None
+    frame_id, child_frame_id, offset = frames
+    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
+    pose = _POSE.unpack_from(data, offset)
+    twist = _TWIST.unpack_from(data, offset + _POSE.size + _COVARIANCE_BYTES)
+    return OdometryFields(sec * 1_000_000_000 + nanosec, frame_id, child_frame_id, pose + twist)
+
+
+def _frames(data: bytes) -> tuple[str, str, int] | None:
+    """frame_id, child_frame_id and the offset of the pose after them, in plain little-endian CDR."""
     if data[:2] != _LITTLE_ENDIAN_CDR or len(data) < _ENCAPSULATION_BYTES + _STAMP.size:
         return None
-    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
     frame_id, offset = _string(data, _ENCAPSULATION_BYTES + _STAMP.size)
     if frame_id is None:
         return None
     child_frame_id, offset = _string(data, offset + _padding(offset, 4))
     if child_frame_id is None:
         return None
-    offset += _padding(offset, 8)
-    if len(data) < offset + _AFTER_FRAMES_BYTES:
-        return None
-    pose = _POSE.unpack_from(data, offset)
-    twist = _TWIST.unpack_from(data, offset + _POSE.size + _COVARIANCE_BYTES)
-    return OdometryFields(sec * 1_000_000_000 + nanosec, frame_id, child_frame_id, pose + twist)
+    return frame_id, child_frame_id, offset + _padding(offset, 8)
 
 
 def _padding(offset: int, alignment: int) -> int:

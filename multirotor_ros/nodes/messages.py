@@ -242,10 +242,7 @@ def odometry_message(
 
     ``out``: an Odometry to fill in place (its covariances are left as they are: zero, unknown).
     """
-    # Plain floats rather than numpy: the simulator builds hundreds of these per second.
-    s = np.asarray(x, dtype=float).reshape(-1)[: S.ROTORS_START].tolist()
-    px, py, pz, vx, vy, vz, w, qx, qy, qz, wx, wy, wz = s
-    # v_B = R^T v_W, with R the rotation matrix of q (rows of R^T are the columns of R).
+    px, py, pz, qx, qy, qz, w, bx, by, bz, wx, wy, wz = odometry_values_of_state(x)
     message = Odometry() if out is None else out
     message.header.stamp = stamp
     message.header.frame_id = frame_id
@@ -255,12 +252,24 @@ def odometry_message(
     o = pose.orientation
     o.x, o.y, o.z, o.w = qx, qy, qz, w
     twist = message.twist.twist
-    linear = twist.linear
-    linear.x = (1 - 2 * (qy * qy + qz * qz)) * vx + 2 * (qx * qy + w * qz) * vy + 2 * (qx * qz - w * qy) * vz
-    linear.y = 2 * (qx * qy - w * qz) * vx + (1 - 2 * (qx * qx + qz * qz)) * vy + 2 * (qy * qz + w * qx) * vz
-    linear.z = 2 * (qx * qz + w * qy) * vx + 2 * (qy * qz - w * qx) * vy + (1 - 2 * (qx * qx + qy * qy)) * vz
+    twist.linear.x, twist.linear.y, twist.linear.z = bx, by, bz
     twist.angular.x, twist.angular.y, twist.angular.z = wx, wy, wz
     return message
+
+
+def odometry_values_of_state(x: ArrayLike) -> tuple[float, ...]:
+    """The 13 values of a flat state's Odometry, in the message's order (odometry_values)."""
+    # Plain floats rather than numpy: the simulator builds hundreds of these per second.
+    s = np.asarray(x, dtype=float).reshape(-1)[: S.ROTORS_START].tolist()
+    px, py, pz, vx, vy, vz, w, qx, qy, qz, wx, wy, wz = s
+    # v_B = R^T v_W, with R the rotation matrix of q (rows of R^T are the columns of R).
+    return (
+        px, py, pz, qx, qy, qz, w,
+        (1 - 2 * (qy * qy + qz * qz)) * vx + 2 * (qx * qy + w * qz) * vy + 2 * (qx * qz - w * qy) * vz,
+        2 * (qx * qy - w * qz) * vx + (1 - 2 * (qx * qx + qz * qz)) * vy + 2 * (qy * qz + w * qx) * vz,
+        2 * (qx * qz + w * qy) * vx + 2 * (qy * qz - w * qx) * vy + (1 - 2 * (qx * qx + qy * qy)) * vz,
+        wx, wy, wz,
+    )  # fmt: skip
 
 
 def state_from_odometry(message: Any) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | Refusal:

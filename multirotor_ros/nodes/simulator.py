@@ -110,6 +110,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.nodes.cdr import OdometryWriter
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, ClockClaim, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.listeners import ListenerGate, StateTopic
@@ -118,6 +119,7 @@ from multirotor_ros.nodes.messages import (
     joint_state_from_rotor_speeds,
     odometry_covariances,
     odometry_message,
+    odometry_values_of_state,
     pose_message,
     rotor_names,
     rotor_speeds_from_joint_state,
@@ -392,8 +394,11 @@ class _VehicleTopics:
                 ("motor_speeds", JointState, STATE_QUEUE_DEPTH),
             )
         }
-        # The message odom is filled into (SimulatorNode._odometry_message); its covariances are the node's.
+        # The message /tf's transform is filled from (SimulatorNode._odometry_message), and odom is written
+        # serialised from (nodes/cdr.py; made when the covariances are known): its frames are the vehicle's.
         self.odometry = Odometry()
+        self.odometry.header.frame_id, self.odometry.child_frame_id = self.frames
+        self.odometry_writer: OdometryWriter | None = None
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
@@ -504,6 +509,7 @@ class SimulatorNode(Node):
         covariances = odometry_covariances(self.sim.sensor_config)
         for vehicle in self.vehicles:
             vehicle.odometry.pose.covariance, vehicle.odometry.twist.covariance = covariances
+            vehicle.odometry_writer = OdometryWriter(vehicle.odometry)
         # tf is absolute, as tf2 listeners expect; frame_prefix and the vehicle names keep vehicles apart.
         self._tf_listeners = (
             ListenerGate(self.create_publisher(TFMessage, "/tf", TF_QOS)) if p["publish_tf"] else None
@@ -839,15 +845,19 @@ class SimulatorNode(Node):
 
     def _publish_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> None:
         """A vehicle's odom, with its covariances, and its transform on /tf (``state``: not changed later)."""
-        odometry = vehicle.topics["odom"].send(partial(self._odometry_message, vehicle, state, stamp))
+        vehicle.topics["odom"].send(partial(self._serialised_odometry, vehicle, state, stamp))
         if self._tf_listeners is not None and self._tf_listeners.heard():
-            if odometry is None:
-                odometry = self._odometry_message(vehicle, state, stamp)
+            odometry = self._odometry_message(vehicle, state, stamp)
             self._tf_listeners.publisher.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
 
+    def _serialised_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> bytes:
+        # Published as it is: rclpy's conversion and serialisation of an Odometry cost more than the rest
+        # of a state's publishing (nodes/cdr.py).
+        assert vehicle.odometry_writer is not None
+        return vehicle.odometry_writer.write(stamp, odometry_values_of_state(state))
+
     def _odometry_message(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> Odometry:
-        # Filled in place (a new Odometry costs more than its fields): what it held was published already,
-        # and resending means sending the newest state.
+        # Filled in place (a new Odometry costs more than its fields): what it held was published already.
         return odometry_message(state, stamp, *vehicle.frames, out=vehicle.odometry)
 
     def _resend_state(self) -> None:
