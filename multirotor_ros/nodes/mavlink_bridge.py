@@ -67,6 +67,7 @@ from multirotor_ros.mavlink.signing import SigningPolicy, parse_signing_key
 from multirotor_ros.mavlink.vehicle import VehicleState
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, euler_to_quat
+from multirotor_ros.nodes.cdr import OdometryWriter
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.listeners import ListenerGate
@@ -74,7 +75,7 @@ from multirotor_ros.nodes.messages import (
     LATCHED_QOS,
     imu_from_message,
     joint_state_from_rotor_speeds,
-    odometry_message,
+    odometry_values_of_state,
     pose_message,
     rotor_speeds_from_joint_state,
     simulated_imu_message,
@@ -384,7 +385,12 @@ class MavlinkBridgeNode(Node):
             self.crashed_publisher = self.create_publisher(Bool, "crashed", LATCHED_QOS)
             self.crashed_publisher.publish(Bool(data=False))
             self._crashed = False
-            self._odom_message, self._imu_message = Odometry(), Imu()
+            # odom goes out serialised (nodes/cdr.py): rclpy's conversion of an Odometry costs more than
+            # SITL's own frame. Its covariances stay zero (unknown), as in the message it replaces.
+            odometry = Odometry()
+            odometry.header.frame_id, odometry.child_frame_id = self._frames
+            self._odom_writer = OdometryWriter(odometry)
+            self._imu_message = Imu()
             self._speeds_message, self._clock_message = JointState(), Clock()
         else:
             self._odom: tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None = None
@@ -508,8 +514,9 @@ class MavlinkBridgeNode(Node):
     def _publish_reading(self, reading: Reading, imu_config: SensorConfig) -> None:
         stamp = stamp_from_ns(reading.t_ns)
         if reading.kind == "odom":
-            message = odometry_message(reading.data, stamp, *self._frames, out=self._odom_message)
-            self._publish(self.odom_publisher, message)
+            self._publish(
+                self.odom_publisher, self._odom_writer.write(stamp, odometry_values_of_state(reading.data))
+            )
         elif reading.kind == "imu":
             message = simulated_imu_message(
                 stamp, self._frames[1], reading.data, imu_config, out=self._imu_message
