@@ -15,6 +15,9 @@ import re
 import signal
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -425,6 +428,56 @@ def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fl
             assert "stamp in the future" not in log, log
 
 
+HOVER = np.zeros(13)
+HOVER[2], HOVER[6] = 1.0, 1.0  # 1 m up, level (w = 1)
+PERIOD_NS = 4_000_000
+
+
+@dataclass
+class ProbeSimulator:
+    """The probe playing a lockstep simulator for a controller (probe_as_lockstep_simulator)."""
+
+    controller: NodeProcess
+    commands: Any  # the probe's subscription to the controller's motor_speed_cmd
+    odom: Any
+    clock: Any
+
+    def stand_at(self, stamp_ns: int) -> None:
+        """A hover state and the clock at that instant, as a lockstep simulator standing there sends."""
+        self.odom.publish(odometry_message(HOVER, stamp_from_ns(stamp_ns)))
+        self.clock.publish(Clock(clock=stamp_from_ns(stamp_ns)))
+
+    def commands_stamped(self, stamp_ns: int) -> list[JointState]:
+        return [m for m in self.commands.messages if stamp_to_ns(m.header.stamp) == stamp_ns]
+
+
+@contextmanager
+def probe_as_lockstep_simulator(probe: RosProbe, tmp_path, namespace: str) -> Iterator[ProbeSimulator]:
+    """A controller on simulated time whose odom and clock the probe publishes, commanding already."""
+    simulator = ProbeSimulator(  # the probe's endpoints first, then the controller (started at once)
+        commands=probe.subscribe(f"{namespace}/motor_speed_cmd", JointState),
+        odom=probe.publisher(f"{namespace}/odom", Odometry),
+        clock=probe.publisher(f"{namespace}/clock", Clock),
+        controller=NodeProcess(
+            "controller",
+            tmp_path / "controller.log",
+            namespace=namespace,
+            parameters={"use_sim_time": True},
+            remaps={"/clock": f"{namespace}/clock"},
+        ),
+    )
+    with simulator.controller:
+        probe.wait_for_subscribers(simulator.odom, timeout=STARTUP_TIMEOUT_S)
+        probe.wait_for_subscribers(simulator.clock, timeout=STARTUP_TIMEOUT_S)
+        # Until the first command, as the simulator does: the clock is best effort, and its first
+        # messages can go before the controller's reader has matched the probe.
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not simulator.commands.messages and time.monotonic() < deadline:
+            simulator.stand_at(PERIOD_NS)
+            time.sleep(0.25)
+        yield simulator
+
+
 @pytest.mark.ros
 def test_a_command_lost_in_lockstep_is_sent_again_when_the_simulator_resends_its_state(
     probe: RosProbe, tmp_path
@@ -434,52 +487,27 @@ def test_a_command_lost_in_lockstep_is_sent_again_when_the_simulator_resends_its
     Seen under load: 18 bad commands from another node in a burst overflowed the simulator's
     motor_speed_cmd queue, the controller's command for t went with them, and the loop stood at t for ever.
     """
-    namespace = "/lost"
-    commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState)
-    clock = probe.publisher(f"{namespace}/clock", Clock)
-    odom = probe.publisher(f"{namespace}/odom", Odometry)
-    hover = np.zeros(13)
-    hover[2], hover[6] = 1.0, 1.0  # 1 m up, level (w = 1)
-    with NodeProcess(
-        "controller",
-        tmp_path / "controller.log",
-        namespace=namespace,
-        parameters={"use_sim_time": True},
-        remaps={"/clock": f"{namespace}/clock"},
-    ) as controller:
-        probe.wait_for_subscribers(odom, timeout=STARTUP_TIMEOUT_S)
-        probe.wait_for_subscribers(clock, timeout=STARTUP_TIMEOUT_S)
+    with probe_as_lockstep_simulator(probe, tmp_path, "/lost") as simulator:
 
         def commanded(stamp_ns: int, count: int) -> list[JointState]:
-            return commands.wait_for(
+            return simulator.commands.wait_for(
                 lambda m: stamp_to_ns(m.header.stamp) == stamp_ns, count=count, timeout=30.0
             )
 
-        def stand_at(stamp_ns: int) -> None:
-            odom.publish(odometry_message(hover, stamp_from_ns(stamp_ns)))
-            clock.publish(Clock(clock=stamp_from_ns(stamp_ns)))
-
-        period_ns = 4_000_000
-        # Until the first command, as the simulator does: the clock is best effort, and its first
-        # messages can go before the controller's reader has matched the probe.
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while not commands.messages and time.monotonic() < deadline:
-            stand_at(period_ns)
-            time.sleep(0.25)
         for k in range(1, 6):
-            stand_at(k * period_ns)
-            commanded(k * period_ns, count=1)
+            simulator.stand_at(k * PERIOD_NS)
+            commanded(k * PERIOD_NS, count=1)
         # The command for 5 periods is "lost": the simulator, still at that instant, resends its state.
         time.sleep(0.3)
-        stand_at(5 * period_ns)
-        first, again = commanded(5 * period_ns, count=2)[:2]
+        simulator.stand_at(5 * PERIOD_NS)
+        first, again = commanded(5 * PERIOD_NS, count=2)[:2]
         assert list(again.velocity) == list(first.velocity) and list(again.name) == list(first.name)
         # Time moves on: one command per instant again, none repeated without a resend.
-        stand_at(6 * period_ns)
-        commanded(6 * period_ns, count=1)
+        simulator.stand_at(6 * PERIOD_NS)
+        commanded(6 * PERIOD_NS, count=1)
         time.sleep(0.3)
-        assert len([m for m in commands.messages if stamp_to_ns(m.header.stamp) == 6 * period_ns]) == 1
-        controller.assert_running()
+        assert len(simulator.commands_stamped(6 * PERIOD_NS)) == 1
+        simulator.controller.assert_running()
 
 
 @pytest.mark.ros
@@ -487,40 +515,17 @@ def test_the_state_of_the_next_tick_is_computed_without_waiting_for_its_clock(
     probe: RosProbe, tmp_path
 ) -> None:
     """The probe plays a lockstep simulator: its /clock for an instant comes after that instant's state."""
-    namespace = "/ahead"
-    commands = probe.subscribe(f"{namespace}/motor_speed_cmd", JointState)
-    clock = probe.publisher(f"{namespace}/clock", Clock)
-    odom = probe.publisher(f"{namespace}/odom", Odometry)
-    hover = np.zeros(13)
-    hover[2], hover[6] = 1.0, 1.0  # 1 m up, level (w = 1)
-    period_ns = 4_000_000
-
-    def stamped(stamp_ns: int) -> list[JointState]:
-        return [m for m in commands.messages if stamp_to_ns(m.header.stamp) == stamp_ns]
-
-    with NodeProcess(
-        "controller",
-        tmp_path / "controller.log",
-        namespace=namespace,
-        parameters={"use_sim_time": True},
-        remaps={"/clock": f"{namespace}/clock"},
-    ) as controller:
-        probe.wait_for_subscribers(odom, timeout=STARTUP_TIMEOUT_S)
-        probe.wait_for_subscribers(clock, timeout=STARTUP_TIMEOUT_S)
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while not commands.messages and time.monotonic() < deadline:
-            odom.publish(odometry_message(hover, stamp_from_ns(period_ns)))
-            clock.publish(Clock(clock=stamp_from_ns(period_ns)))
-            time.sleep(0.25)
+    with probe_as_lockstep_simulator(probe, tmp_path, "/ahead") as simulator:
         # The state of the next instant alone: its command comes before the clock says it is that time.
-        odom.publish(odometry_message(hover, stamp_from_ns(2 * period_ns)))
-        commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 2 * period_ns, timeout=30.0)
-        clock.publish(Clock(clock=stamp_from_ns(2 * period_ns)))  # ... and its clock adds no second one
+        simulator.odom.publish(odometry_message(HOVER, stamp_from_ns(2 * PERIOD_NS)))
+        simulator.commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 2 * PERIOD_NS, timeout=30.0)
+        simulator.clock.publish(Clock(clock=stamp_from_ns(2 * PERIOD_NS)))  # ... adds no second command
         # A state two periods ahead of the clock is no tick: it waits for the clock.
-        odom.publish(odometry_message(hover, stamp_from_ns(4 * period_ns)))
+        simulator.odom.publish(odometry_message(HOVER, stamp_from_ns(4 * PERIOD_NS)))
         time.sleep(0.5)
-        assert len(stamped(2 * period_ns)) == 1 and not stamped(4 * period_ns)
-        clock.publish(Clock(clock=stamp_from_ns(4 * period_ns)))
-        commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 4 * period_ns, timeout=30.0)
-        assert not stamped(3 * period_ns)
-        controller.assert_running()
+        assert len(simulator.commands_stamped(2 * PERIOD_NS)) == 1
+        assert not simulator.commands_stamped(4 * PERIOD_NS)
+        simulator.clock.publish(Clock(clock=stamp_from_ns(4 * PERIOD_NS)))
+        simulator.commands.wait_for(lambda m: stamp_to_ns(m.header.stamp) == 4 * PERIOD_NS, timeout=30.0)
+        assert not simulator.commands_stamped(3 * PERIOD_NS)
+        simulator.controller.assert_running()
