@@ -10,9 +10,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import JointState
 
 from multirotor_ros.nodes import cdr
-from multirotor_ros.nodes.cdr import odometry_fields, odometry_fields_from_cdr
+from multirotor_ros.nodes.cdr import (
+    JointStateFields,
+    joint_state_fields,
+    joint_state_fields_from_cdr,
+    odometry_fields,
+    odometry_fields_from_cdr,
+)
 from multirotor_ros.nodes.messages import odometry_message, odometry_values_of_state
 from multirotor_ros.refusals import Refusal
 
@@ -119,3 +126,55 @@ def test_the_writer_gives_the_bytes_rclpy_serialises_for_the_same_message(
     written = deserialize_message(writer.write(stamp, odometry_values_of_state(x)), Odometry)
     expected = odometry_message(x, stamp, frame_id, child_frame_id, out=template)
     assert written == expected and odometry_fields(written) == odometry_fields(expected)
+
+
+DOUBLES = st.lists(st.floats(allow_nan=False), max_size=10)
+
+
+@given(
+    frame_id=FRAMES,
+    names=st.lists(FRAMES, max_size=10),
+    position=DOUBLES,
+    velocity=DOUBLES,
+    effort=DOUBLES,
+    sec=st.integers(-(2**31), 2**31 - 1),
+    nanosec=st.integers(0, 2**32 - 1),
+)
+@settings(max_examples=300)
+def test_a_serialised_joint_state_reads_as_rclpys_message_does(
+    frame_id: str, names: list[str], position, velocity, effort, sec: int, nanosec: int
+) -> None:
+    message = JointState(name=names, position=position, velocity=velocity, effort=effort)
+    message.header.frame_id = frame_id
+    message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+    data = serialize_message(message)
+    assert cdr._plain_little_endian_joint_state(data) is not None  # the fast path, not the fallback
+    assert joint_state_fields_from_cdr(data) == JointStateFields(
+        sec * 1_000_000_000 + nanosec, tuple(names), tuple(velocity)
+    )
+
+
+VALID_COMMAND = serialize_message(JointState(name=[f"rotor_{k}" for k in range(1, 9)], velocity=[300.0] * 8))
+
+
+@given(
+    cut=st.integers(0, len(VALID_COMMAND)),
+    changes=st.lists(st.tuples(st.integers(0, len(VALID_COMMAND) - 1), st.integers(0, 255)), max_size=4),
+)
+@settings(max_examples=500)
+def test_a_damaged_joint_state_is_refused_with_the_reason_or_read_as_rclpy_reads_it(
+    cut: int, changes
+) -> None:
+    data = bytearray(VALID_COMMAND[:cut])
+    for index, value in changes:
+        if index < len(data):
+            data[index] = value
+    read = joint_state_fields_from_cdr(bytes(data))
+    try:
+        expected: JointStateFields | None = joint_state_fields(deserialize_message(bytes(data), JointState))
+    except Exception:  # what rclpy raises for bytes it cannot read
+        expected = None
+    if isinstance(read, Refusal):
+        assert expected is None and read.reason == "malformed joint state"
+    else:
+        assert expected is not None and read[:2] == expected[:2] and _same(read.velocity, expected.velocity)

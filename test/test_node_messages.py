@@ -284,7 +284,11 @@ def test_the_fast_readers_agree_with_the_checked_ones(position, q_WB, factor, v_
     pose = PoseStamped()
     pose.pose = message.pose.pose
     for fast, checked, argument in [
-        (messages.state_from_odometry, messages._checked_state, message),
+        (
+            messages.state_from_odometry,
+            lambda m: messages._checked_state(messages.odometry_values(m)),
+            message,
+        ),
         (messages.pose_from_message, messages._checked_pose, pose),
         (messages.setpoint_from_pose, messages._checked_setpoint, pose),
     ]:

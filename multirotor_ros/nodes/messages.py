@@ -87,21 +87,29 @@ def _rotor_names(n_rotors: int) -> tuple[str, ...]:
 
 def rotor_speeds_from_joint_state(message: Any, n_rotors: int, limit_rad_s: float) -> RotorSpeeds | Refusal:
     """Validate a rotor-speed JointState (see the module docstring); never raises on bad content."""
-    names, velocity = message.name, message.velocity
+    return rotor_speeds_from_parts(
+        message.name, message.velocity, stamp_to_ns(message.header.stamp), n_rotors, limit_rad_s
+    )
+
+
+def rotor_speeds_from_parts(
+    names: Any, velocity: Any, stamp_ns: int, n_rotors: int, limit_rad_s: float
+) -> RotorSpeeds | Refusal:
+    """rotor_speeds_from_joint_state of a JointState's names, velocities and stamp [ns] (read apart)."""
     # The common case: names in rotor order, every speed within [0, limit] (NaN fails the comparison).
     if (
         len(velocity) == n_rotors
         and tuple(names) == _rotor_names(n_rotors)
         and all(0.0 <= v <= limit_rad_s for v in velocity)
     ):
-        return RotorSpeeds(np.array(velocity, dtype=float), stamp_to_ns(message.header.stamp))
-    return _checked_rotor_speeds(names, velocity, n_rotors, limit_rad_s, message.header.stamp)
+        return RotorSpeeds(np.array(velocity, dtype=float), stamp_ns)
+    return _checked_rotor_speeds(names, velocity, n_rotors, limit_rad_s, stamp_ns)
 
 
 def _checked_rotor_speeds(
-    message_names: Any, message_velocity: Any, n_rotors: int, limit_rad_s: float, stamp: Any
+    message_names: Any, message_velocity: Any, n_rotors: int, limit_rad_s: float, stamp_ns: int
 ) -> RotorSpeeds | Refusal:
-    """rotor_speeds_from_joint_state of any message: names in any order, and the reason of a refusal."""
+    """rotor_speeds_from_parts of any content: names in any order, and the reason of a refusal."""
     names = list(message_names)
     velocity = np.asarray(message_velocity, dtype=float)
     if len(names) != n_rotors:
@@ -132,7 +140,7 @@ def _checked_rotor_speeds(
             "oversized speed",
             f"rotor_{k + 1} = {speeds[k]:g} rad/s > {limit_rad_s:g} rad/s (speeds are rad/s, not rpm)",
         )
-    return RotorSpeeds(speeds, stamp_to_ns(stamp))
+    return RotorSpeeds(speeds, stamp_ns)
 
 
 def _rotor_number(name: str, n_rotors: int) -> int | None:

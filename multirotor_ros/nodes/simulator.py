@@ -110,7 +110,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from multirotor_ros.model.airframe import load_airframe
-from multirotor_ros.nodes.cdr import OdometryWriter
+from multirotor_ros.nodes.cdr import OdometryWriter, joint_state_fields_from_cdr
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, ClockClaim, steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.listeners import ListenerGate, StateTopic
@@ -122,7 +122,7 @@ from multirotor_ros.nodes.messages import (
     odometry_values_of_state,
     pose_message,
     rotor_names,
-    rotor_speeds_from_joint_state,
+    rotor_speeds_from_parts,
     simulated_imu_message,
     stamp_from_ns,
     stamp_to_ns,
@@ -403,7 +403,7 @@ class _VehicleTopics:
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
         self.commands = node.create_subscription(
-            JointState, prefix + "motor_speed_cmd", lambda message: node.on_command(self, message), 10
+            JointState, prefix + "motor_speed_cmd", partial(node.on_command, self), 10, raw=True
         )
         self.followers = [
             node.create_subscription(
@@ -643,9 +643,19 @@ class SimulatorNode(Node):
 
     # ------------------------------------------------------------------ inputs
 
-    def on_command(self, vehicle: _VehicleTopics, message: JointState) -> None:
-        """A vehicle's ``motor_speed_cmd``: checked (module docstring), applied, and lockstep moved on."""
-        result = rotor_speeds_from_joint_state(message, self.airframe.n_rotors, self._speed_limit)
+    def on_command(self, vehicle: _VehicleTopics, data: bytes) -> None:
+        """A vehicle's ``motor_speed_cmd``: checked (module docstring), applied, and lockstep moved on.
+
+        Taken serialised and read by nodes/cdr.py (rclpy's JointState object costs more than the rest).
+        """
+        command = joint_state_fields_from_cdr(data)
+        result = (
+            command
+            if isinstance(command, Refusal)
+            else rotor_speeds_from_parts(
+                command.names, command.velocity, command.stamp_ns, self.airframe.n_rotors, self._speed_limit
+            )
+        )
         if not isinstance(result, Refusal) and result.stamp_ns:
             result = vehicle.command_gate.check(result.stamp_ns, self._now_ns(), "motor_speed_cmd") or result
         if isinstance(result, Refusal):
