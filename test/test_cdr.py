@@ -25,6 +25,7 @@ from multirotor_ros.refusals import Refusal
 
 FRAMES = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=12)
 VALUES = st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=13, max_size=13)
+STAMP = {"sec": st.integers(-(2**31), 2**31 - 1), "nanosec": st.integers(0, 2**32 - 1)}
 
 
 def _odometry(frame_id: str, child_frame_id: str, values: list[float], sec: int, nanosec: int) -> Odometry:
@@ -49,13 +50,7 @@ def _same(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return all(x == y or (math.isnan(x) and math.isnan(y)) for x, y in zip(a, b, strict=True))
 
 
-@given(
-    frame_id=FRAMES,
-    child_frame_id=FRAMES,
-    values=VALUES,
-    sec=st.integers(-(2**31), 2**31 - 1),
-    nanosec=st.integers(0, 2**32 - 1),
-)
+@given(frame_id=FRAMES, child_frame_id=FRAMES, values=VALUES, **STAMP)
 @settings(max_examples=300)
 def test_the_serialised_odometry_reads_as_rclpys_message_does(
     frame_id: str, child_frame_id: str, values: list[float], sec: int, nanosec: int
@@ -137,8 +132,7 @@ DOUBLES = st.lists(st.floats(allow_nan=False), max_size=10)
     position=DOUBLES,
     velocity=DOUBLES,
     effort=DOUBLES,
-    sec=st.integers(-(2**31), 2**31 - 1),
-    nanosec=st.integers(0, 2**32 - 1),
+    **STAMP,
 )
 @settings(max_examples=300)
 def test_a_serialised_joint_state_reads_as_rclpys_message_does(

@@ -26,6 +26,7 @@ effort, each a uint32 count aligned to 4 and its doubles aligned to 8.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from nav_msgs.msg import Odometry
@@ -67,14 +68,7 @@ def odometry_fields(message: Any) -> OdometryFields:
 
 def odometry_fields_from_cdr(data: bytes) -> OdometryFields | Refusal:
     """The fields of a serialised Odometry (module docstring), or why it cannot be read."""
-    fields = _plain_little_endian(data)
-    if fields is not None:
-        return fields
-    try:
-        message = deserialize_message(data, Odometry)
-    except Exception as error:  # whatever rclpy's deserialiser says of bytes it cannot read
-        return Refusal("malformed odometry", f"{len(data)} bytes that are no Odometry: {error}")
-    return odometry_fields(message)
+    return _read(data, _plain_little_endian, Odometry, odometry_fields, "odometry")
 
 
 class JointStateFields(NamedTuple):
@@ -87,19 +81,30 @@ class JointStateFields(NamedTuple):
 
 def joint_state_fields_from_cdr(data: bytes) -> JointStateFields | Refusal:
     """The fields of a serialised JointState (module docstring), or why it cannot be read."""
-    fields = _plain_little_endian_joint_state(data)
-    if fields is not None:
-        return fields
-    try:
-        message = deserialize_message(data, JointState)
-    except Exception as error:  # whatever rclpy's deserialiser says of bytes it cannot read
-        return Refusal("malformed joint state", f"{len(data)} bytes that are no JointState: {error}")
-    return joint_state_fields(message)
+    return _read(data, _plain_little_endian_joint_state, JointState, joint_state_fields, "joint state")
 
 
 def joint_state_fields(message: Any) -> JointStateFields:
     """The fields of a JointState message object."""
     return JointStateFields(stamp_to_ns(message.header.stamp), tuple(message.name), tuple(message.velocity))
+
+
+def _read[Fields](
+    data: bytes,
+    plain: Callable[[bytes], Fields | None],
+    message_type: Any,
+    fields_of: Callable[[Any], Fields],
+    what: str,
+) -> Fields | Refusal:
+    """``plain`` of the bytes, else the fields of rclpy's reading of them, else why neither can read them."""
+    fields = plain(data)
+    if fields is not None:
+        return fields
+    try:
+        message = deserialize_message(data, message_type)
+    except Exception as error:  # whatever rclpy's deserialiser says of bytes it cannot read
+        return Refusal(f"malformed {what}", f"{len(data)} bytes that are no {message_type.__name__}: {error}")
+    return fields_of(message)
 
 
 class OdometryWriter:
