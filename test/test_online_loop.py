@@ -28,11 +28,12 @@ from ros_harness import CpuHog, NodeProcess, Recorder, RosProbe
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
-from test_nodes_sim_control import STARTUP_TIMEOUT_S, position, setpoint_message, stamp_s
+from test_nodes_sim_control import STARTUP_TIMEOUT_S, setpoint_message, stamp_s
 
 from multirotor_ros.control.setpoint_queue import SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.nodes.cdr import odometry_fields_from_cdr
 from multirotor_ros.nodes.messages import odometry_message, stamp_from_ns, stamp_to_ns
 from multirotor_ros.nodes.simulator import STALL_WARNING_S
 from multirotor_ros.simulation.flight import ControlTrace, SetpointSchedule, simulate_flight
@@ -152,7 +153,7 @@ def offline_truth() -> tuple[FloatArray, FloatArray]:
 
 def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatArray]:
     """The lockstep flight of STEPS over ROS 2: {odometry stamp [ns]: true position}."""
-    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000)
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=1000, read=odometry_fields_from_cdr)
     setpoints = probe.publisher(f"{namespace}/setpoint", type(setpoint_message(0, 0, 0)), qos=100)
     name = namespace.strip("/")
     # The controller starts first: without a clock it does nothing, so every setpoint is scheduled before
@@ -183,14 +184,14 @@ def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatA
             namespace=namespace,
             parameters={"real_time_factor": 0.0, "publish_clock": True, "seed": SEED},
         )
-        odom.wait_for(lambda m: stamp_s(m) >= FLIGHT_S, timeout=900.0)
+        odom.wait_for(lambda m: m.stamp_ns >= FLIGHT_S * NS_PER_S, timeout=900.0)
         for process in (simulator, controller):
             process.assert_running()
     finally:
         controller.stop()
         if simulator is not None:
             simulator.stop()
-    return {round(stamp_s(m) * NS_PER_S): position(m) for m in odom.messages}
+    return {m.stamp_ns: np.array(m.values[:3]) for m in odom.messages}
 
 
 @pytest.fixture(scope="module")
