@@ -115,7 +115,7 @@ class OdometryWriter:
         frames = _frames(bytes(self._data))
         if frames is None:  # Fast DDS serialises ROS types as plain little-endian CDR
             raise ValueError("rclpy did not serialise the Odometry as plain little-endian CDR")
-        self._pose_offset = frames[2]
+        self._pose_offset = frames[3]
         self._twist_offset = self._pose_offset + _POSE.size + _COVARIANCE_BYTES
 
     def write(self, stamp: Any, values: tuple[float, ...]) -> bytes:
@@ -128,21 +128,20 @@ class OdometryWriter:
 
 def _plain_little_endian(data: bytes) -> OdometryFields | None:
     frames = _frames(data)
-    if frames is None or len(data) < frames[2] + _AFTER_FRAMES_BYTES:
+    if frames is None or len(data) < frames[3] + _AFTER_FRAMES_BYTES:
         return None
-    frame_id, child_frame_id, offset = frames
-    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
+    stamp_ns, frame_id, child_frame_id, offset = frames
     pose = _POSE.unpack_from(data, offset)
     twist = _TWIST.unpack_from(data, offset + _POSE.size + _COVARIANCE_BYTES)
-    return OdometryFields(sec * 1_000_000_000 + nanosec, frame_id, child_frame_id, pose + twist)
+    return OdometryFields(stamp_ns, frame_id, child_frame_id, pose + twist)
 
 
 def _plain_little_endian_joint_state(data: bytes) -> JointStateFields | None:
-    if data[:2] != _LITTLE_ENDIAN_CDR or len(data) < _ENCAPSULATION_BYTES + _STAMP.size:
+    header = _header(data)
+    if header is None:
         return None
-    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
-    frame_id, offset = _string(data, _ENCAPSULATION_BYTES + _STAMP.size)
-    count, offset = _count(data, offset) if frame_id is not None else (None, offset)
+    stamp_ns, _, offset = header
+    count, offset = _count(data, offset)
     if count is None:
         return None
     names = []
@@ -163,7 +162,7 @@ def _plain_little_endian_joint_state(data: bytes) -> JointStateFields | None:
             return None
         sequences.append(struct.unpack_from(f"<{count}d", data, offset))
         offset = end
-    return JointStateFields(sec * 1_000_000_000 + nanosec, tuple(names), sequences[1])
+    return JointStateFields(stamp_ns, tuple(names), sequences[1])
 
 
 def _count(data: bytes, offset: int) -> tuple[int | None, int]:
@@ -174,17 +173,25 @@ def _count(data: bytes, offset: int) -> tuple[int | None, int]:
     return _LENGTH.unpack_from(data, offset)[0], offset + _LENGTH.size
 
 
-def _frames(data: bytes) -> tuple[str, str, int] | None:
-    """frame_id, child_frame_id and the offset of the pose after them, in plain little-endian CDR."""
+def _header(data: bytes) -> tuple[int, str, int] | None:
+    """The std_msgs/Header of plain little-endian CDR: stamp [ns], frame_id and the offset after them."""
     if data[:2] != _LITTLE_ENDIAN_CDR or len(data) < _ENCAPSULATION_BYTES + _STAMP.size:
         return None
+    sec, nanosec = _STAMP.unpack_from(data, _ENCAPSULATION_BYTES)
     frame_id, offset = _string(data, _ENCAPSULATION_BYTES + _STAMP.size)
-    if frame_id is None:
+    return None if frame_id is None else (sec * 1_000_000_000 + nanosec, frame_id, offset)
+
+
+def _frames(data: bytes) -> tuple[int, str, str, int] | None:
+    """An Odometry's stamp [ns], frame_id, child_frame_id and the offset of the pose after them."""
+    header = _header(data)
+    if header is None:
         return None
+    stamp_ns, frame_id, offset = header
     child_frame_id, offset = _string(data, offset + _padding(offset, 4))
     if child_frame_id is None:
         return None
-    return frame_id, child_frame_id, offset + _padding(offset, 8)
+    return stamp_ns, frame_id, child_frame_id, offset + _padding(offset, 8)
 
 
 def _padding(offset: int, alignment: int) -> int:

@@ -388,13 +388,12 @@ class ControllerNode(Node):
             diagnosis = NOTHING_KNOWN
         else:
             diagnosis = self._diagnosis
-        unchanged = diagnosis is self._diagnosis_given and self._effectiveness_filter.settled
-        if diagnosis is self._diagnosis_given:
-            # Given already: the filter holds it, at almost no cost once settled (EffectivenessFilter).
-            diagnosis = NOTHING_KNOWN
-        else:
-            self._diagnosis_given = diagnosis
-        effectiveness = self._effectiveness_filter.update(t_s, *diagnosis)
+        given_already = diagnosis is self._diagnosis_given
+        unchanged = given_already and self._effectiveness_filter.settled
+        self._diagnosis_given = diagnosis
+        # Given already: the filter holds it, at almost no cost once settled (EffectivenessFilter).
+        given = NOTHING_KNOWN if given_already else diagnosis
+        effectiveness = self._effectiveness_filter.update(t_s, *given)
         if unchanged:
             return effectiveness
         reallocated = [int(k) for k in np.flatnonzero(effectiveness < 1.0 - REALLOCATION_NOTICE)]

@@ -395,10 +395,12 @@ class _VehicleTopics:
             )
         }
         # The message /tf's transform is filled from (SimulatorNode._odometry_message), and odom is written
-        # serialised from (nodes/cdr.py; made when the covariances are known): its frames are the vehicle's.
+        # serialised from (nodes/cdr.py): the vehicle's frames, covariances fixed by the sensor model.
         self.odometry = Odometry()
         self.odometry.header.frame_id, self.odometry.child_frame_id = self.frames
-        self.odometry_writer: OdometryWriter | None = None
+        covariances = odometry_covariances(node.sim.sensor_config)
+        self.odometry.pose.covariance, self.odometry.twist.covariance = covariances
+        self.odometry_writer = OdometryWriter(self.odometry)
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
@@ -505,11 +507,6 @@ class SimulatorNode(Node):
         self._last_slow_warning_s = -math.inf
 
         self._clock_pub = self.create_publisher(Clock, GRAPH_CLOCK_TOPIC, CLOCK_QOS) if clock_on else None
-        # The odometry's covariances: fixed by the sensor model (messages.odometry_covariances).
-        covariances = odometry_covariances(self.sim.sensor_config)
-        for vehicle in self.vehicles:
-            vehicle.odometry.pose.covariance, vehicle.odometry.twist.covariance = covariances
-            vehicle.odometry_writer = OdometryWriter(vehicle.odometry)
         # tf is absolute, as tf2 listeners expect; frame_prefix and the vehicle names keep vehicles apart.
         self._tf_listeners = (
             ListenerGate(self.create_publisher(TFMessage, "/tf", TF_QOS)) if p["publish_tf"] else None
@@ -863,7 +860,6 @@ class SimulatorNode(Node):
     def _serialised_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> bytes:
         # Published as it is: rclpy's conversion and serialisation of an Odometry cost more than the rest
         # of a state's publishing (nodes/cdr.py).
-        assert vehicle.odometry_writer is not None
         return vehicle.odometry_writer.write(stamp, odometry_values_of_state(state))
 
     def _odometry_message(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> Odometry:
