@@ -248,18 +248,28 @@ class Recorder:
     def wait_for(
         self, predicate: Callable[[Any], bool] | None = None, count: int = 1, timeout: float = 10.0
     ) -> list[Any]:
-        """Wait until ``count`` received messages satisfy ``predicate``; return all that do."""
+        """Wait until ``count`` received messages satisfy ``predicate``; return all that do.
 
-        def matching() -> list[Any]:
-            return [m for m in self._messages if predicate is None or predicate(m)]
+        Each wake-up tests only the messages that arrived since the last: rescanning all of them held the
+        lock the spinning thread needs for every new message, and a lockstep burst of thousands then
+        starved it until the publishers' bounded histories dropped states.
+        """
+        matching: list[Any] = []
+        tested = 0
+
+        def enough() -> bool:
+            nonlocal tested
+            matching.extend(m for m in self._messages[tested:] if predicate is None or predicate(m))
+            tested = len(self._messages)
+            return len(matching) >= count
 
         with self._condition:
-            if self._condition.wait_for(lambda: len(matching()) >= count, timeout):
-                return matching()
-            found, total = len(matching()), len(self._messages)
+            if self._condition.wait_for(enough, timeout):
+                return matching
+            total = len(self._messages)
             last = repr(self._messages[-1])[:600] if self._messages else "none"
         raise AssertionError(
-            f"{self.topic}: {found} of the {count} wanted messages within {timeout} s "
+            f"{self.topic}: {len(matching)} of the {count} wanted messages within {timeout} s "
             f"({total} received in all, {self._count_publishers()} publishers seen; the last: {last})"
         )
 

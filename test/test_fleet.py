@@ -127,8 +127,12 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
         ]
         every = set().union(*stamps)
         assert all(stamp % PUBLISH_PERIOD_NS == 0 for stamp in every)
-        # The probe's losses can hit all three vehicles at once (1.2 % of the window in a clean-clone run).
-        assert len(every) >= 0.95 * 4.0 * NS_PER_S / PUBLISH_PERIOD_NS
+        # No period skipped: consecutive stamps are one publish period apart. The probe's losses can hit all
+        # three vehicles at once (1.2 and 11.5 % of the window in two clean-clone runs, both one burst),
+        # which opens a few long gaps; a simulator publishing every other period would make all of them 2.
+        steps = np.diff(sorted(every))
+        assert len(every) > 0.5 * 4.0 * NS_PER_S / PUBLISH_PERIOD_NS
+        assert np.mean(steps == PUBLISH_PERIOD_NS) >= 0.95, np.unique(steps, return_counts=True)
         assert all(len(seen) >= 0.95 * len(every) for seen in stamps), [len(every) - len(x) for x in stamps]
         (outcome,) = probe.set_parameters("/simulator", {"uav2.fault_motor": 3}).values()
         assert outcome.successful
