@@ -1,7 +1,8 @@
 """Lockstep against the real ArduCopter: the bridge's answer per frame beside SITL's own, and the speed.
 
     .venv/bin/python bench/bench_ardupilot.py [--speedups 1,5,10] [--rate 1200] [--airframe quad_x]
-                                              [--via library,node,node-heard] [--rounds 1] [--json FILE]
+                                              [--via library,node,node-heard,node-heard-typed]
+                                              [--rounds 1] [--json FILE]
 
 ArduCopter SITL (shared/flight_stacks/ardupilot, see SOURCE.md there) flies the test mission of
 :mod:`multirotor_ros.mavlink.arducopter` (pre-arm checks and EKF, GUIDED, arm, 5 m, hover, 10 m north
@@ -14,8 +15,11 @@ turning east, LAND, disarm) against the bridge, once per requested speedup and w
   ``motor_speeds``, ``motor_speed_cmd`` and ``/clock`` in a ROS graph of its own, ROS_DOMAIN_ID random,
   localhost only) with nobody subscribing, so that it publishes nothing (nodes/listeners.py); the ground
   station in this process;
-- ``node-heard``: the same with a process subscribing to those five topics (what an identifier, a
-  recorder or ``use_sim_time`` nodes do), which prints how many messages of each it got.
+- ``node-heard``: the same with a process subscribing to those five topics serialised, as ``ros2 bag
+  record`` does, which prints how many messages of each it got;
+- ``node-heard-typed``: the same with the subscriber taking message objects, as a Python node that reads
+  every field does (an Odometry costs it about 45 us to convert: on two cores it is a third busy process
+  beside SITL and the bridge).
 
 Per run: the real-time factor achieved (ArduCopter's simulated seconds per wall second, from connecting
 to disarming) against the requested speedup; the bridge's answer time per frame (the servo packet's
@@ -39,6 +43,7 @@ import tempfile
 import threading
 import time
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 
 
@@ -125,10 +130,16 @@ def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path)
 LISTENED_TOPICS = ("odom", "imu", "motor_speeds", "motor_speed_cmd", "/clock")
 
 
-def listen(seconds: float) -> dict[str, int]:
-    """Subscribe to the bridge's state topics until SIGINT or ``seconds``; messages received per topic."""
+def listen(typed: bool) -> dict[str, int]:
+    """Subscribe to the bridge's state topics until SIGINT; messages received per topic.
+
+    Serialised (``typed`` false) as ``ros2 bag record`` takes them, or converted to message objects as a
+    Python node reading every field would. One executor spins throughout: ``rclpy.spin_once`` would
+    rebuild its wait set for each message and cost the machine more than the subscriber's own work.
+    """
     import rclpy
     from nav_msgs.msg import Odometry
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.qos import qos_profile_sensor_data
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Imu, JointState
@@ -145,22 +156,18 @@ def listen(seconds: float) -> dict[str, int]:
 
     for topic in LISTENED_TOPICS:
         kind, qos = types.get(topic, (JointState, 10))
-        node.create_subscription(kind, topic, count(topic), qos)
-    deadline = time.monotonic() + seconds
+        node.create_subscription(kind, topic, count(topic), qos, raw=not typed)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        while time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except KeyboardInterrupt:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     return counts
 
 
-def run_node_heard(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
-    return run_node(airframe_name, speedup, rate_hz, workdir, heard=True)
-
-
 def run_node(
-    airframe_name: str, speedup: float, rate_hz: int, workdir: Path, heard: bool = False
+    airframe_name: str, speedup: float, rate_hz: int, workdir: Path, listener_kind: str | None = None
 ) -> dict[str, float]:
     port = _free_udp_port()
     environment = dict(
@@ -184,9 +191,9 @@ def run_node(
             if node.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"the node did not start:\n{log_path.read_text()}")
             time.sleep(0.1)
-        if heard:
+        if listener_kind is not None:
             listener = subprocess.Popen(
-                [sys.executable, __file__, "--role", "listener"],
+                [sys.executable, __file__, "--role", listener_kind],
                 env=environment,
                 stdout=subprocess.PIPE,
                 text=True,
@@ -251,21 +258,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=int, default=1200, help="SITL frame rate [Hz] (SIM_RATE_HZ)")
     parser.add_argument("--airframe", default="quad_x")
     parser.add_argument(
-        "--via", default="library,node,node-heard", help="library, node, node-heard (comma separated)"
+        "--via",
+        default="library,node,node-heard",
+        help="library, node, node-heard, node-heard-typed (comma separated)",
     )
     parser.add_argument("--rounds", type=int, default=1, help="runs of each combination")
     parser.add_argument("--json", type=Path, help="also write the results here")
-    parser.add_argument("--role", choices=["ground-station", "listener"], help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--role", choices=["ground-station", "recorder", "typed-listener"], help=argparse.SUPPRESS
+    )
     parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.role == "ground-station":
         print(json.dumps(ground_station(args.port)), flush=True)
         return 0
-    if args.role == "listener":
-        print(json.dumps(listen(seconds=3600.0)), flush=True)
+    if args.role in ("recorder", "typed-listener"):
+        print(json.dumps(listen(typed=args.role == "typed-listener")), flush=True)
         return 0
 
-    runners = {"library": run_library, "node": run_node, "node-heard": run_node_heard}
+    runners = {
+        "library": run_library,
+        "node": run_node,
+        "node-heard": partial(run_node, listener_kind="recorder"),
+        "node-heard-typed": partial(run_node, listener_kind="typed-listener"),
+    }
     print(f"{args.airframe}, ArduCopter SITL at {args.rate} Hz, {os.cpu_count()} cores")
     results: list[dict[str, object]] = []
     for _ in range(args.rounds):

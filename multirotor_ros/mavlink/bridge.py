@@ -12,7 +12,6 @@ See :mod:`multirotor_ros.mavlink` for the two modes (internal physics / external
 
 from __future__ import annotations
 
-import gc
 import logging
 import math
 import selectors
@@ -33,6 +32,7 @@ from multirotor_ros.mavlink.signing import SigningPolicy
 from multirotor_ros.mavlink.vehicle import Physics, Simulation, VehicleState
 from multirotor_ros.model.airframe import GRAVITY_M_S2
 from multirotor_ros.model.rotation import FloatArray
+from multirotor_ros.realtime import start_up_frozen
 from multirotor_ros.refusals import RefusalCounter
 
 _LOGGER = logging.getLogger(__name__)
@@ -249,15 +249,9 @@ class MavlinkBridge:
 
     def run(self, stop: threading.Event, max_wait_s: float = 0.1) -> None:
         """Loop until ``stop`` is set."""
-        # What start-up made (imports, compiled kernels, ROS: a few hundred thousand objects) is moved
-        # out of the garbage collector's sight: a full collection would scan it all, tens of milliseconds
-        # in the middle of lockstep, while what is made per frame is freed by reference counting.
-        gc.freeze()
-        try:
+        with start_up_frozen():  # a full collection would take tens of milliseconds mid-lockstep
             while not stop.is_set():
                 self.spin_once(max_wait_s)
-        finally:
-            gc.unfreeze()  # what became garbage meanwhile is collectable again
 
     def close(self) -> None:
         """Close every socket."""

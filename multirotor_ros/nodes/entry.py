@@ -38,6 +38,8 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from multirotor_ros.realtime import start_up_frozen
+
 
 @contextmanager
 def initialised_context(args: Sequence[str] | None) -> Iterator[Context]:
@@ -85,7 +87,7 @@ def run_node(node_factory: Callable[..., Node], args: Sequence[str] | None = Non
                     executor.add_node(spun)
                 if not isinstance(executor, SingleThreadedExecutor):
                     signals.enter_context(_signals_set(stop))  # until the node is torn down
-                with _profiled(node):
+                with _profiled(node), start_up_frozen():
                     spin(executor, context, stop)
             except (KeyboardInterrupt, ExternalShutdownException):
                 pass
