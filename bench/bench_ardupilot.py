@@ -18,8 +18,10 @@ turning east, LAND, disarm) against the bridge, once per requested speedup and w
 - ``node-heard``: the same with a process subscribing to those five topics serialised, as ``ros2 bag
   record`` does, which prints how many messages of each it got;
 - ``node-heard-typed``: the same with the subscriber taking message objects, as a Python node that reads
-  every field does (an Odometry costs it about 45 us to convert: on two cores it is a third busy process
-  beside SITL and the bridge).
+  every field does (an Odometry costs it about 45 us to convert).
+
+Either subscriber, in Python, takes as many messages as a core lets it: on two cores it is a third busy
+process beside SITL and the bridge.
 
 Per run: the real-time factor achieved (ArduCopter's simulated seconds per wall second, from connecting
 to disarming) against the requested speedup; the bridge's answer time per frame (the servo packet's
@@ -128,6 +130,8 @@ def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path)
 
 
 LISTENED_TOPICS = ("odom", "imu", "motor_speeds", "motor_speed_cmd", "/clock")
+# The subscriber process's roles (--role), each with whether it takes message objects.
+LISTENER_TYPED = {"recorder": False, "typed-listener": True}
 
 
 def listen(typed: bool) -> dict[str, int]:
@@ -264,16 +268,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--rounds", type=int, default=1, help="runs of each combination")
     parser.add_argument("--json", type=Path, help="also write the results here")
-    parser.add_argument(
-        "--role", choices=["ground-station", "recorder", "typed-listener"], help=argparse.SUPPRESS
-    )
+    parser.add_argument("--role", choices=["ground-station", *LISTENER_TYPED], help=argparse.SUPPRESS)
     parser.add_argument("--port", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.role == "ground-station":
         print(json.dumps(ground_station(args.port)), flush=True)
         return 0
-    if args.role in ("recorder", "typed-listener"):
-        print(json.dumps(listen(typed=args.role == "typed-listener")), flush=True)
+    if args.role in LISTENER_TYPED:
+        print(json.dumps(listen(typed=LISTENER_TYPED[args.role])), flush=True)
         return 0
 
     runners = {

@@ -17,7 +17,11 @@ from contextlib import contextmanager
 
 @contextmanager
 def start_up_frozen() -> Iterator[None]:
-    """Move every object alive now out of the collector's sight until the block ends."""
+    """Move every object alive now out of the collector's sight until the block ends.
+
+    Blocks may overlap (the ``mavlink_bridge`` node's spin and its bridge thread's loop): the later one
+    also freezes what was made since the first; the first to end unfreezes everything, at shutdown.
+    """
     gc.collect()  # garbage of the start-up is freed, not kept for good
     gc.freeze()
     try:
