@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
@@ -156,6 +156,8 @@ VALID_COMMAND = serialize_message(JointState(name=[f"rotor_{k}" for k in range(1
     changes=st.lists(st.tuples(st.integers(0, len(VALID_COMMAND) - 1), st.integers(0, 255)), max_size=4),
 )
 @settings(max_examples=500)
+# A NUL inside a name (found by hypothesis in CI): rclpy reads the name up to it, as C does.
+@example(cut=len(VALID_COMMAND), changes=[(VALID_COMMAND.index(b"rotor_2"), 0)])
 def test_a_damaged_joint_state_is_refused_with_the_reason_or_read_as_rclpy_reads_it(
     cut: int, changes
 ) -> None:

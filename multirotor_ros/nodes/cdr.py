@@ -206,7 +206,9 @@ def _string(data: bytes, offset: int) -> tuple[str | None, int]:
     end = offset + _LENGTH.size + length
     if length == 0 or end > len(data) or data[end - 1] != 0:
         return None, offset
+    # rclpy reads a string as C does, up to its first NUL: b"a\0b" is "a", as any ROS node sees it.
+    text, _, _ = data[offset + _LENGTH.size : end - 1].partition(b"\0")
     try:
-        return data[offset + _LENGTH.size : end - 1].decode(), end
+        return text.decode(), end
     except UnicodeDecodeError:
         return None, offset
