@@ -13,7 +13,9 @@ Fixtures
         A :class:`RosProbe`: an rclpy node in its own context, spun by a background thread.
 
 :class:`RosProbe`
-    ``subscribe(topic, msg_type, qos=10) -> Recorder``; ``publisher(topic, msg_type, qos=10)``;
+    ``subscribe(topic, msg_type, qos=10, read=None, lockstep_progress=None) -> Recorder`` (``read``: what to
+    keep of each serialised message; ``lockstep_progress``: the probe follows a lockstep simulator and
+    loses nothing); ``publisher(topic, msg_type, qos=10)``;
     ``wait_for_subscribers(publisher, count=1, timeout=10.0)``; ``wait_for_node(fqn, timeout=10.0)``;
     ``set_parameters(node_fqn, {name: value}, timeout=10.0) -> {name: SetParametersResult}``
     (``.successful``, ``.reason``; the Python type picks the ROS type: pass 2.0 for a double);
@@ -312,20 +314,49 @@ class RosProbe:
         self.context.try_shutdown()
 
     def subscribe(
-        self, topic: str, msg_type: type, qos: Any = 10, read: Callable[[bytes], Any] | None = None
+        self,
+        topic: str,
+        msg_type: type,
+        qos: Any = 10,
+        read: Callable[[bytes], Any] | None = None,
+        lockstep_progress: str | None = None,
     ) -> Recorder:
         """Record every message on ``topic``; with ``read``, what it reads of each serialised message.
 
         A lockstep loop publishes faster than this process takes typed messages (an Odometry costs about
         45 us to convert), and the writer's history is bounded: ``read`` keeps up (nodes/cdr.py).
+
+        ``lockstep_progress`` makes the probe a lockstep follower of the simulator (its
+        ``lockstep_followers`` parameter names the same topic): after each message it publishes a
+        std_msgs/Header stamped with the message's ``stamp_ns`` (what ``read`` gives) on that topic, and a
+        lockstep simulator runs at most 10 ms of simulated time ahead of it. Without it a probe that falls
+        behind a lockstep burst loses the messages the publisher's bounded history drops (seen under load).
         """
         recorder = Recorder(topic, lambda: self.node.count_publishers(topic))
         if read is None:
+            if lockstep_progress is not None:
+                raise ValueError("lockstep_progress needs read (the stamp of each serialised message)")
             self.node.create_subscription(msg_type, topic, recorder._receive, qos)
-        else:
+            return recorder
+        if lockstep_progress is None:
             self.node.create_subscription(
                 msg_type, topic, lambda data: recorder._receive(read(data)), qos, raw=True
             )
+            return recorder
+        from std_msgs.msg import Header
+
+        from multirotor_ros.nodes.messages import stamp_from_ns
+
+        progress = self.node.create_publisher(Header, lockstep_progress, 10)
+
+        def receive_and_report(data: bytes) -> None:
+            fields = read(data)
+            recorder._receive(fields)
+            stamp_ns = getattr(fields, "stamp_ns", None)
+            if stamp_ns is not None:  # a refusal (damaged bytes) has no stamp to report
+                progress.publish(Header(stamp=stamp_from_ns(stamp_ns)))
+
+        self.node.create_subscription(msg_type, topic, receive_and_report, qos, raw=True)
         return recorder
 
     def publisher(self, topic: str, msg_type: type, qos: Any = 10) -> Any:
