@@ -198,6 +198,38 @@ def test_samples_without_rotor_speeds_of_their_time_are_missing_data(x8):
     assert not alarms(results)
 
 
+@pytest.mark.parametrize("late_rows", [45, 52, 53])
+def test_rotor_speeds_that_come_late_go_with_their_own_time_or_with_none(x8, late_rows):
+    """The speeds stream half a second behind the states, as a loaded node got it (test_soak in CI).
+
+    Reports at 50 Hz, each delivered ``late_rows`` rows (10 ms each) after the state of its time. Within
+    ``max_wait_s`` (0.5 s) a state waits for the report after it and gets interpolated speeds; a state
+    that waited longer has none of its time and is skipped. Pairing it with the report before it, up to
+    25 ms old, as the monitor did, raised stopped-rotor alarms on this flight's steps at 52 and 53 rows.
+    """
+    rows = flight(x8.name)
+    deliveries = []
+    for k, (stamp, p, v, q, w, omega) in enumerate(rows):
+        deliveries.append((k, 1, lambda m, a=(stamp, p, v, q, w): m.state(*a)))
+        if k % 2 == 0:
+            deliveries.append((k + late_rows, 0, lambda m, a=(stamp, omega): m.rotor_speeds(*a)))
+    monitor = FlightMonitor(x8, [])
+    results: list[StepResult] = []
+    for _, _, deliver in sorted(deliveries, key=lambda d: d[:2]):
+        outcome = deliver(monitor)
+        results += outcome if isinstance(outcome, list) else []
+    assert not alarms(results)
+    waited_s = late_rows * 0.01
+    if waited_s <= monitor.settings.max_wait_s:
+        assert judged_share(results, rows) > 0.6
+    else:
+        landing_s = SETPOINTS[-1][0]
+        flying = [r for r in results if TAKE_OFF_S <= (r.stamp_ns - ORIGIN_NS) / NS < landing_s]
+        assert flying and {r.skipped for r in flying} == {"no recent motor_speeds"}, {
+            r.skipped for r in flying
+        }
+
+
 # ------------------------------------------------------------------ real faults are still found
 
 

@@ -12,9 +12,10 @@ nanoseconds, already converted to SI, ENU/FLU) and
    speeds that are not the rotors' (:class:`~multirotor_ros.diagnosis.residuals.InnovationGate`:
    isolated ones only; the samples of a surprise that lasts are used, late). Each state sample is paired
    with the rotor speeds at its stamp (interpolated between the reports around it), waiting for them
-   if they come later; a sample whose rotor speeds are not known, because the newest are older than
-   ``motor_speed_max_age_s`` or a report is missing after them, is skipped and counted (older speeds are
-   another moment's: in a manoeuvre the rotors change speed within their time constant, 12–30 ms);
+   if they come later (up to ``max_wait_s`` of stamps); a sample whose rotor speeds are not known,
+   because no report came after it or one is missing around it, is skipped and counted (the speeds of
+   another moment are not its: in a manoeuvre the rotors change speed within their time constant,
+   12–30 ms);
 2. diagnoses every sample (:class:`~multirotor_ros.diagnosis.diagnoser.RotorDiagnoser`) taken in free
    flight: while something may hold the vehicle (the ground under it, a hand, lying on its side;
    :mod:`multirotor_ros.diagnosis.contact` gives the rules and their physics) nothing is identified or
@@ -123,7 +124,6 @@ class MonitorSettings:
 
     sample_rate_hz: float = 100.0  # [Hz] state samples processed per second, on average
     max_gap_s: float = 0.05  # [s] data missing for longer is a gap (module docstring: Breaks)
-    motor_speed_max_age_s: float = 0.025  # [s] rotor speeds older than this do not go with a state sample
     max_wait_s: float = 0.5  # [s] (of stamps) a state sample waits at most this long for its rotor speeds
 
     def __post_init__(self) -> None:
@@ -332,20 +332,22 @@ class FlightMonitor:
     def _speeds_for(self, stamp_ns: int) -> FloatArray | None:
         """The rotor speeds at ``stamp_ns``, or None when they are not known (module docstring, 1.).
 
-        Between the report at or before it and the next one, linearly: the reported speeds are measured
-        ones, continuous (rotors follow their commands with a lag), and in a manoeuvre the speeds of a
-        report 8 ms old are another moment's (pairing each sample with the report before it gave the
+        The report at ``stamp_ns``, or between the reports around it, linearly: the reported speeds are
+        measured ones, continuous (rotors follow their commands with a lag), and in a manoeuvre the speeds
+        of a report 8 ms old are another moment's (pairing each sample with the report before it gave the
         observer transients of a stopped rotor's size on steps, depending only on how the odometry's
-        stamps fell between the reports). Without a next report yet, the one before, if at most
-        ``motor_speed_max_age_s`` old. Not known when a report is missing between the two (more than
-        ``HOLE_PERIODS`` typical report intervals apart): the speeds within such a hole are not known.
+        stamps fell between the reports). Not known without a report after it (a sample that waited
+        ``max_wait_s`` for one: holding the report before it over raised false stopped-rotor alarms on
+        steps, in real time on a loaded machine, where the speeds came late), nor when a report is missing
+        between the two (more than ``HOLE_PERIODS`` typical report intervals apart).
         """
         later: tuple[int, FloatArray] | None = None
         for stamp, speeds in reversed(self._speeds):
-            if stamp <= stamp_ns:
+            if stamp == stamp_ns:
+                return speeds
+            if stamp < stamp_ns:
                 if later is None:
-                    fresh = (stamp_ns - stamp) * 1e-9 <= self.settings.motor_speed_max_age_s
-                    return speeds if fresh else None
+                    return None
                 span_ns = later[0] - stamp
                 if span_ns > HOLE_PERIODS * self._report_interval_ns():
                     return None
@@ -484,8 +486,8 @@ class FlightMonitor:
         if omega is None:
             result.skipped = "no recent motor_speeds"
             result.skipped_detail = (
-                f"{self._at('state', waiting.stamp_ns)} has no rotor speeds of its time (within "
-                f"{self.settings.motor_speed_max_age_s:g} s, none missing after them)"
+                f"{self._at('state', waiting.stamp_ns)} has no rotor speeds of its time (no report at or "
+                f"after it within {self.settings.max_wait_s:g} s, or one missing around it)"
             )
             return [result]
         sample = _Sample(waiting.stamp_ns, waiting.state.with_omega(omega[None]))

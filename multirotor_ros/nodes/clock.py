@@ -11,6 +11,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMessage
 from std_msgs.msg import Header
 
+from multirotor_ros.nodes import subscriptions
 from multirotor_ros.nodes.messages import LATCHED_QOS, stamp_from_ns, stamp_to_ns
 
 # The graph's one clock, whatever the publisher's namespace (rclpy's time source listens on /clock).
@@ -97,7 +98,7 @@ class NodeTime:
         self.simulated = bool(node.get_parameter("use_sim_time").value)
         self.simulated_now_ns: int | None = None  # the newest /clock heard
         if subscribe:
-            node.create_subscription(ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
+            subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
 
     @property
     def running(self) -> bool:
@@ -133,7 +134,7 @@ class SharedClock:
 
     def __init__(self, node: Node, times: list[NodeTime]):
         self.times = times
-        node.create_subscription(ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
+        subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
 
     def _heard(self, message: ClockMessage) -> None:
         for node_time in self.times:

@@ -124,6 +124,7 @@ from multirotor_ros.nodes.messages import (
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.reset import ResetFence, frame_refusal, offer_reset
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.plausibility import NS_PER_S, StampGate, StateLimits, format_vector, jump_refusal
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.pacing import ClockTicks, StateForTick
@@ -274,10 +275,10 @@ class ControllerNode(Node):
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
         # Serialised: read by nodes/cdr.py in a fraction of what rclpy's Odometry object costs.
-        self.create_subscription(Odometry, "odom", self._on_odom, 1, raw=True)
+        subscribe(self, Odometry, "odom", self._on_odom, 1, raw=True)
         # As deep as the schedule: a mission sent at once must not lose its first setpoints to its last.
-        self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, SETPOINT_QUEUE_LENGTH)
-        self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
+        subscribe(self, PoseStamped, "setpoint", self._on_setpoint, SETPOINT_QUEUE_LENGTH)
+        subscribe(self, Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
         self.add_on_set_parameters_callback(lambda params: check_parameters(self._specs, params))
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._wall_timer = self.create_timer(

@@ -130,10 +130,14 @@ from multirotor_ros.nodes.messages import (
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.reset import ResetFence, frame_refusal, offer_reset
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.plausibility import StampGate
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
 
+# [s] A pose this old still goes with an IMU sample (pose_imu): a motion-capture pose at 100 Hz comes
+# within 10 ms of every sample, and the attitude of 25 ms before is another moment's in a manoeuvre.
+POSE_MAX_AGE_S = 0.025
 # Messages kept while a callback runs: a simulator running faster than real time publishes in bursts,
 # and a dropped state or rotor-speed message is a gap in the data.
 QUEUE_DEPTH = 100
@@ -211,9 +215,9 @@ def identifier_parameters() -> list[NodeParameter]:
             read_only=True,
         ),
         NodeParameter(
-            "motor_speed_max_age_s",
-            monitor.motor_speed_max_age_s,
-            "rotor speeds (and, for pose_imu, a pose) older than this do not go with a state sample",
+            "pose_max_age_s",
+            POSE_MAX_AGE_S,
+            "input pose_imu: a pose older than this does not go with an IMU sample",
             "s",
             0.001,
             10.0,
@@ -349,9 +353,9 @@ class IdentifierNode(Node):
         self._vehicle = self.get_namespace().strip("/") or self.airframe.name
         self._effectiveness_pub = self.create_publisher(Float64MultiArray, "rotor_effectiveness", 10)
         self._progress_pub = self.create_publisher(Header, "~/progress", 10)
-        self.create_subscription(JointState, "motor_speeds", self._input(self._on_motor_speeds), QUEUE_DEPTH)
+        subscribe(self, JointState, "motor_speeds", self._input(self._on_motor_speeds), QUEUE_DEPTH)
         if p["input"] == "odom":
-            self.create_subscription(Odometry, "odom", self._input(self._on_odometry), QUEUE_DEPTH)
+            subscribe(self, Odometry, "odom", self._input(self._on_odometry), QUEUE_DEPTH)
         else:
             self._fusion = self._new_fusion()
             # Best effort, as sensor data is published, but a deep queue: a dropped sample is a gap.
@@ -360,8 +364,8 @@ class IdentifierNode(Node):
                 reliability=ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.VOLATILE,
             )
-            self.create_subscription(PoseStamped, "pose", self._input(self._on_pose), sensor_qos)
-            self.create_subscription(Imu, "imu", self._input(self._on_imu), sensor_qos)
+            subscribe(self, PoseStamped, "pose", self._input(self._on_pose), sensor_qos)
+            subscribe(self, Imu, "imu", self._input(self._on_imu), sensor_qos)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         wall = steady_clock()
@@ -395,7 +399,7 @@ class IdentifierNode(Node):
             ),
             ObserverSettings(p["observer_convergence_time_s"], p["observer_filter_time_constant_s"]),
             self._detection_settings(p),
-            MonitorSettings(p["sample_rate_hz"], p["max_gap_s"], p["motor_speed_max_age_s"], p["max_wait_s"]),
+            MonitorSettings(p["sample_rate_hz"], p["max_gap_s"], p["max_wait_s"]),
             record,
             resume,
         )
@@ -473,7 +477,7 @@ class IdentifierNode(Node):
         return PoseImuFusion(
             self.monitor.diagnoser.model.gravity_m_s2,
             self._params["max_gap_s"],
-            self._params["motor_speed_max_age_s"],
+            self._params["pose_max_age_s"],
             limits=self.monitor.limits,
         )
 

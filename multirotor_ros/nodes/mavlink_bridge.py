@@ -85,6 +85,7 @@ from multirotor_ros.nodes.messages import (
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.simulator import fault_parameters
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.nodes.vehicles import VehicleSpec
 from multirotor_ros.plausibility import StampGate, StateLimits
 from multirotor_ros.refusals import Refusal, RefusalCounter
@@ -398,11 +399,9 @@ class MavlinkBridgeNode(Node):
             self._limits = StateLimits()
             self._odom_stamps = StampGate()
             self._imu_stamps = StampGate()
-            self.create_subscription(Odometry, "odom", self._on_odom, qos_profile_sensor_data)
-            self.create_subscription(Imu, "imu", self._on_imu, qos_profile_sensor_data)
-            self.create_subscription(
-                JointState, "motor_speeds", self._on_motor_speeds, qos_profile_sensor_data
-            )
+            subscribe(self, Odometry, "odom", self._on_odom, qos_profile_sensor_data)
+            subscribe(self, Imu, "imu", self._on_imu, qos_profile_sensor_data)
+            subscribe(self, JointState, "motor_speeds", self._on_motor_speeds, qos_profile_sensor_data)
 
         stack_port = p["flight_stack_port"]
         config = BridgeConfig(

@@ -54,6 +54,7 @@ from multirotor_ros.nodes.clock import steady_clock
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import pose_message, stamp_from_ns, stamp_to_ns, state_from_odometry
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.refusals import Refusal, RefusalCounter
 
 # How often the node looks for a new subscriber of its setpoints (wall time) [s].
@@ -110,7 +111,7 @@ class MissionNode(Node):
         self._subscribers = 0
         self._refusals = RefusalCounter(self.get_logger().warning, "odom")
         self._publisher = self.create_publisher(PoseStamped, "setpoint", SETPOINT_QUEUE_LENGTH)
-        self.create_subscription(Odometry, "odom", self._on_odom, 10)
+        subscribe(self, Odometry, "odom", self._on_odom, 10)
         self.create_timer(SUBSCRIBER_CHECK_PERIOD_S, self._offer, clock=steady_clock())
         self.get_logger().info(
             f"{self.mission.origin}: {len(self.mission)} setpoints over {self.mission.duration_s:g} s, "

@@ -129,6 +129,7 @@ from multirotor_ros.nodes.messages import (
 )
 from multirotor_ros.nodes.parameters import NodeParameter, check_parameters, declare_parameters
 from multirotor_ros.nodes.reset import RESET_SERVICE, SIMULATION_RESET_QOS, SIMULATION_RESET_TOPIC
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.nodes.vehicles import VehicleSpec, parse_vehicles
 from multirotor_ros.nodes.visual_messages import rotor_transforms, transform_from_odometry
 from multirotor_ros.plausibility import StampGate
@@ -404,12 +405,16 @@ class _VehicleTopics:
         self.faults = node.create_publisher(DiagnosticArray, prefix + "injected_faults", LATCHED_QOS)
         self.resets = node.create_publisher(Header, prefix + SIMULATION_RESET_TOPIC, SIMULATION_RESET_QOS)
         self.crashed = node.create_publisher(Bool, prefix + "crashed", LATCHED_QOS)
-        self.commands = node.create_subscription(
-            JointState, prefix + "motor_speed_cmd", partial(node.on_command, self), 10, raw=True
+        self.commands = subscribe(
+            node, JointState, prefix + "motor_speed_cmd", partial(node.on_command, self), 10, raw=True
         )
         self.followers = [
-            node.create_subscription(
-                Header, prefix + topic, partial(node.on_follower, node.resolve_topic_name(prefix + topic)), 10
+            subscribe(
+                node,
+                Header,
+                prefix + topic,
+                partial(node.on_follower, node.resolve_topic_name(prefix + topic)),
+                10,
             )
             for topic in node.follower_topics
         ]

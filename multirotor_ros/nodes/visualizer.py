@@ -37,6 +37,7 @@ from multirotor_ros.nodes.messages import (
     state_from_odometry,
 )
 from multirotor_ros.nodes.parameters import NodeParameter, declare_parameters
+from multirotor_ros.nodes.subscriptions import subscribe
 from multirotor_ros.nodes.visual_messages import BASE_FRAME, VehicleView, vehicle_markers
 from multirotor_ros.refusals import Refusal, RefusalCounter
 from multirotor_ros.simulation.vehicle import OVERSIZED_SPEED_FACTOR
@@ -84,10 +85,10 @@ class VisualizerNode(Node):
         }
         self._markers_pub = self.create_publisher(MarkerArray, "markers", 10)
         self._path_pub = self.create_publisher(Path, "path", 10)
-        self.create_subscription(Odometry, "odom", self._on_odom, 10)
-        self.create_subscription(JointState, "motor_speed_cmd", self._on_command, 10)
-        self.create_subscription(Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
-        self.create_subscription(PoseStamped, "setpoint", self._on_setpoint, 10)
+        subscribe(self, Odometry, "odom", self._on_odom, 10)
+        subscribe(self, JointState, "motor_speed_cmd", self._on_command, 10)
+        subscribe(self, Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
+        subscribe(self, PoseStamped, "setpoint", self._on_setpoint, 10)
         self.create_timer(1.0 / p["rate_hz"], self._update)
         self.get_logger().info(f"{airframe.name}: markers and path at {p['rate_hz']:g} Hz")
 
