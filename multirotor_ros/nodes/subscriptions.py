@@ -3,17 +3,18 @@
 rclpy's EventsExecutor (the nodes' default, nodes/entry.py) takes from a subscription as many messages as
 the middleware announced with its new-message callback. Under load some announcements are lost, and the
 messages they stood for stay in the subscription's queue, taken one per later announcement: the stream
-then runs late by that many messages for good. Measured in the identifier on real time beside the
-simulator and controller: its ``motor_speeds`` ran a steady 0.5 s behind its ``odom`` (50 messages) within
-seconds of start-up, with and without a CPU hog, while a probe subscribing to the same topics in another
-process got both on time; taking what is left after each message found 1,065 such messages in 40 s and
-brought the stream back to 0-6 ms (then ``odom``, not yet drained, was the late one). An identifier whose
-rotor speeds come half a second after the states pairs states with speeds of another moment or drops
-them, and a controller or simulator whose input runs late acts on old news.
+then runs late by that many messages for good. Measured in the identifier in real time beside the
+simulator and controller (a trace of each message's arrival in its callbacks): its ``motor_speeds`` ran
+a steady 0.5 s (50 messages) behind its ``odom`` within seconds, beside five busy-loop processes and
+beside none (that run's own tracing stalled the node now and then), while a probe subscribing to both in
+another process got them on time. Taking what is left after each message found 1,065 such messages in
+40 s; in 150 s beside two busy-loop processes both streams then came with a median lag of 0 ms. An
+identifier whose rotor speeds come half a second after the states pairs states with speeds of another
+moment or drops them, and a controller or simulator whose input runs late acts on old news.
 
 :func:`subscribe` hands each message to the callback and then takes whatever else is waiting, at most the
 queue's depth (one callback does not starve the others when a publisher outruns the node: what is beyond
-the depth is lost anyway). With nothing waiting, that costs one empty take (about 2 us). The executor then
+the depth is lost anyway). With nothing waiting, that costs one empty take (3.8 us). The executor then
 finds nothing for announcements whose messages were taken here, which it handles as an empty take.
 """
 
