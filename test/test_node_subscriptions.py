@@ -13,6 +13,7 @@ from collections.abc import Iterator
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.publisher import Publisher
 from std_msgs.msg import Header
 
 from multirotor_ros.nodes.messages import stamp_from_ns, stamp_to_ns
@@ -33,15 +34,21 @@ def node() -> Iterator[rclpy.node.Node]:
     context.try_shutdown()
 
 
-def test_one_callback_takes_what_is_waiting_in_order_and_never_more_than_the_depth(node) -> None:
-    received: list[int] = []
-    subscribe(node, Header, "waiting", lambda m: received.append(stamp_to_ns(m.stamp)), DEPTH)
-    publisher = node.create_publisher(Header, "waiting", DEPTH)
+def matched(node, topic: str) -> tuple[Publisher, SingleThreadedExecutor]:
+    """A publisher on ``topic`` once it sees the node's subscription, and an executor for the node."""
+    publisher = node.create_publisher(Header, topic, DEPTH)
     deadline = time.monotonic() + 10.0
     while publisher.get_subscription_count() < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
+    return publisher, executor
+
+
+def test_one_callback_takes_what_is_waiting_in_order_and_never_more_than_the_depth(node) -> None:
+    received: list[int] = []
+    subscribe(node, Header, "waiting", lambda m: received.append(stamp_to_ns(m.stamp)), DEPTH)
+    publisher, executor = matched(node, "waiting")
     for count in (5, 2 * DEPTH + 1):
         received.clear()
         for k in range(count):
@@ -57,12 +64,7 @@ def test_one_callback_takes_what_is_waiting_in_order_and_never_more_than_the_dep
 def test_a_raw_subscription_gets_the_waiting_messages_serialised(node) -> None:
     received: list[bytes] = []
     subscribe(node, Header, "raw", received.append, DEPTH, raw=True)
-    publisher = node.create_publisher(Header, "raw", DEPTH)
-    deadline = time.monotonic() + 10.0
-    while publisher.get_subscription_count() < 1 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
+    publisher, executor = matched(node, "raw")
     for k in range(3):
         publisher.publish(Header(frame_id=f"f{k}"))
     time.sleep(0.2)
