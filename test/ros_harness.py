@@ -339,24 +339,25 @@ class RosProbe:
             self.node.create_subscription(msg_type, topic, recorder._receive, qos)
             return recorder
         if lockstep_progress is None:
-            self.node.create_subscription(
-                msg_type, topic, lambda data: recorder._receive(read(data)), qos, raw=True
-            )
-            return recorder
-        from std_msgs.msg import Header
 
-        from multirotor_ros.nodes.messages import stamp_from_ns
+            def receive(data: bytes) -> None:
+                recorder._receive(read(data))
 
-        progress = self.node.create_publisher(Header, lockstep_progress, 10)
+        else:
+            from std_msgs.msg import Header
 
-        def receive_and_report(data: bytes) -> None:
-            fields = read(data)
-            recorder._receive(fields)
-            stamp_ns = getattr(fields, "stamp_ns", None)
-            if stamp_ns is not None:  # a refusal (damaged bytes) has no stamp to report
-                progress.publish(Header(stamp=stamp_from_ns(stamp_ns)))
+            from multirotor_ros.nodes.messages import stamp_from_ns
 
-        self.node.create_subscription(msg_type, topic, receive_and_report, qos, raw=True)
+            progress = self.node.create_publisher(Header, lockstep_progress, 10)
+
+            def receive(data: bytes) -> None:
+                fields = read(data)
+                recorder._receive(fields)
+                stamp_ns = getattr(fields, "stamp_ns", None)
+                if stamp_ns is not None:  # a refusal (damaged bytes) has no stamp to report
+                    progress.publish(Header(stamp=stamp_from_ns(stamp_ns)))
+
+        self.node.create_subscription(msg_type, topic, receive, qos, raw=True)
         return recorder
 
     def publisher(self, topic: str, msg_type: type, qos: Any = 10) -> Any:

@@ -15,7 +15,10 @@ moment or drops them, and a controller or simulator whose input runs late acts o
 :func:`subscribe` hands each message to the callback and then takes whatever else is waiting, at most the
 queue's depth (one callback does not starve the others when a publisher outruns the node: what is beyond
 the depth is lost anyway). With nothing waiting, that costs one empty take (3.8 us). The executor then
-finds nothing for announcements whose messages were taken here, which it handles as an empty take.
+finds nothing for announcements whose messages were taken here, which it handles as an empty take. A queue
+of depth 1 (the controller's odometry, every ``/clock``) gets a plain subscription: what waits there is
+replaced by the next message, whose own announcement takes it, so nothing can stay behind for good and an
+empty take per message would be pure cost on the lockstep loop's path.
 """
 
 from __future__ import annotations
@@ -37,12 +40,15 @@ def subscribe(
     raw: bool = False,
 ) -> Subscription:
     """``node.create_subscription`` whose callback also takes what is left in the queue (module docstring)."""
+    depth = qos if isinstance(qos, int) else qos.depth
+    if depth <= 1:
+        return node.create_subscription(msg_type, topic, callback, qos, raw=raw)
     subscription: Subscription | None = None
 
     def take_all(message: Any) -> None:
         callback(message)
         assert subscription is not None  # created before any message can come
-        for _ in range(subscription.qos_profile.depth):
+        for _ in range(depth):
             with subscription.handle:
                 taken = subscription.handle.take_message(msg_type, raw)
             if taken is None:
