@@ -2,6 +2,10 @@
 
     .venv/bin/python bench/bench_crazypad.py [--data ../shared/data/crazypad/motor_data] [--markdown]
 
+``--data ../shared/data/crazypad/controller_data`` runs the same on CrazyPAD's other flights, which log
+the PID controller instead of the motors (the converter rebuilds the motor commands by the firmware's
+mixer): 29 flights that no threshold or model choice here was tuned on.
+
 For every flight in the data's folders (normal_flight, cut_propeller_*, tape_on_propeller_*,
 add_weight_*): the baseline is the normal flights of the same session (the file name's E8/E9 prefix:
 the vehicle as it was built that day), leaving out the flight under test; `identify` fits k_f, the
@@ -47,7 +51,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="CrazyPAD motor_data folder")
+    parser.add_argument(
+        "--data", type=Path, default=DEFAULT_DATA, help="CrazyPAD motor_data or controller_data folder"
+    )
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown (README)")
     parser.add_argument(
         "--effects",

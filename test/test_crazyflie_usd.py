@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from multirotor_ros.io.convert import convert, detect_format
-from multirotor_ros.io.crazyflie_usd import read_usd_log
+from multirotor_ros.io.crazyflie_usd import motor_commands_of_controller, read_usd_log
 from multirotor_ros.io.log_builder import ConversionError
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import euler_to_matrix
@@ -262,8 +262,104 @@ def test_every_crazypad_motor_flight_converts_and_its_rotor_commands_hold_the_ve
         assert log.t[-1] > 20.0
 
 
-@needs_crazypad
-def test_a_controller_data_file_is_refused_with_the_reason(crazyflie) -> None:
-    path = next(CRAZYPAD.glob("controller_data/normal_flight/E*"))
-    with pytest.raises(ConversionError, match="controller_data files log the controller"):
+CONTROLLER_VARIABLES = [
+    *[(f"stateEstimate.{axis}", "f") for axis in "xyz"],
+    *[(f"controller.cmd_{name}", "f") for name in ("thrust", "roll", "pitch", "yaw")],
+    *[(f"controller.r_{name}", "f") for name in ("roll", "pitch", "yaw")],
+    *[(f"controller.{name}", "f") for name in ("roll", "pitch", "yaw")],
+]
+
+
+def controller_records(n: int, outputs, gyro_rad_s, setpoint_deg, off: int = 0):
+    """The PID controller's log: motors off (thrust 0) for the first ``off`` records, then ``outputs``."""
+    records = []
+    for i in range(n):
+        thrust_roll_pitch_yaw = (0.0, 0.0, 0.0, 0.0) if i < off else outputs
+        values = (0.0, 0.0, 0.5, *thrust_roll_pitch_yaw, *gyro_rad_s, *setpoint_deg)
+        records.append((FIXED_FREQUENCY, 1_000_000 + 10_000 * i, values))
+    return records
+
+
+def test_a_controller_log_gets_the_firmware_mixer_s_motor_commands_and_a_derived_attitude(
+    crazyflie, tmp_path
+):
+    """CrazyPAD's controller_data files: no motors, no attitude estimate; the firmware's mixer and gyro."""
+    assert motor_commands_of_controller(np.array([[40000.0, 1001.0, -301.0, 250.0]])).tolist() == [
+        [40000 - 500 - 150 + 250, 40000 - 500 + 150 - 250, 40000 + 500 + 150 + 250, 40000 + 500 - 150 - 250]
+    ], "r = roll / 2 and p = pitch / 2 truncated as int16 (power_distribution_quadrotor.c)"
+    capped = motor_commands_of_controller(np.array([[65000.0, 2000.0, 0.0, 0.0], [100.0, 0.0, 0.0, 400.0]]))
+    assert capped.tolist() == [[63535, 63535, 65535, 65535], [500, 0, 500, 0]], (
+        "all lowered by the excess, 0 floor"
+    )
+
+    path = tmp_path / "E9_log00"
+    events = {FIXED_FREQUENCY: ("fixedFrequency", CONTROLLER_VARIABLES)}
+    bias = (0.01, -0.02, 0.005)
+    setpoint_deg = (2.0, -3.0, 10.0)  # controller.pitch has the legacy sign: our pitch is +3 deg
+    path.write_bytes(
+        usd_bytes(events, controller_records(500, (40000.0, 0.0, 0.0, 0.0), bias, setpoint_deg, off=50))
+    )
+    conversion = convert(path, crazyflie)
+    log = conversion.log
+    np.testing.assert_allclose(log.columns["u_1"][60:], 40000 / 65535)
+    np.testing.assert_allclose(log.columns["u_1"][:50], 0.0)
+    # A gyro that reads only its bias (seen with the motors off) turns nothing: the setpoints are kept.
+    np.testing.assert_allclose(np.degrees(log.columns["roll"]), 2.0, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(log.columns["pitch"]), 3.0, atol=1e-9)
+    np.testing.assert_allclose(np.degrees(log.columns["yaw"]), 10.0, atol=1e-9)
+    np.testing.assert_allclose(log.columns["q"], 0.0, atol=1e-12)
+    derived = log.metadata["derived"]
+    assert "roll,pitch,yaw NOT LOGGED, derived: the controller's attitude setpoints" in derived
+    assert (
+        "gyro bias (+0.0100, +0.0200, +0.0050) rad/s, its mean over the 0.5 s with the motors off" in derived
+    )
+    assert "differs from the setpoints by 0.00, 0.00 and 0.00 deg RMS" in derived
+    assert "rebuilt from controller.cmd_thrust/cmd_roll/cmd_pitch/cmd_yaw" in log.metadata["resampling"]
+    assert any("the attitude is not logged" in warning for warning in conversion.warnings)
+
+    # A turn the setpoint does not follow yet: the gyro gives it at once, the setpoint wins within seconds.
+    path.write_bytes(
+        usd_bytes(events, controller_records(500, (40000.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    )
+    roll = np.degrees(convert(path, crazyflie).log.columns["roll"])
+    assert 0.0 < roll[20] < roll[40] and roll[-1] == pytest.approx(np.degrees(0.5 * 0.5), rel=0.05)
+
+    without_setpoints = [(name, code) for name, code in CONTROLLER_VARIABLES if name != "controller.yaw"]
+    records = [
+        (e, stamp, values[:-1])
+        for e, stamp, values in controller_records(100, (40000.0, 0.0, 0.0, 0.0), bias, setpoint_deg)
+    ]
+    path.write_bytes(usd_bytes({FIXED_FREQUENCY: ("fixedFrequency", without_setpoints)}, records))
+    with pytest.raises(
+        ConversionError, match=r"nor the controller's gyro and attitude setpoints .*controller.yaw"
+    ):
         convert(path, crazyflie)
+
+
+def _relative_hover_commands(path: Path, airframe) -> np.ndarray:
+    log = convert(path, airframe).log
+    u = np.column_stack([log.columns[f"u_{k}"] for k in range(1, 5)])
+    hovering = (log.columns["z"] > 0.2) & (u.min(axis=1) > 0.3)
+    median = np.median(u[hovering], axis=0)
+    return median / median.mean()
+
+
+@needs_crazypad
+def test_every_controller_flight_converts_and_its_rebuilt_commands_balance_as_the_motor_flights_do(
+    crazyflie,
+) -> None:
+    """The mixer checked on the real vehicle, whose motors these files do not log.
+
+    A controller_data flight needs the same share of the thrust from each rotor as one of the motor_data
+    flights of its session and condition (other flights of the same vehicle; within a session the shares
+    move by up to 0.06 between charges, so the nearest is the one to match).
+    """
+    controller_flights = sorted(CRAZYPAD.glob("controller_data/*/E*"))
+    assert len(controller_flights) >= 29
+    for path in controller_flights:
+        condition, session = path.parent.name, path.name[:2]
+        peers = sorted(CRAZYPAD.glob(f"motor_data/{condition}/{session}_*"))
+        shares = _relative_hover_commands(path, crazyflie)
+        if peers:
+            nearest = min(np.abs(_relative_hover_commands(peer, crazyflie) - shares).max() for peer in peers)
+            assert nearest < 0.02, (path, shares, nearest)

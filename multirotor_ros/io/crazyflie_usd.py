@@ -40,6 +40,20 @@ frame x forward, y left, z up, i.e. FLU; a missing variable is left out, never i
   voltage, or as it is with a warning (it moves with battery voltage at constant thrust).
 - ``pm.vbatMV`` [mV] or ``pm.vbat`` [V] -> extra column ``battery_v``.
 
+A log of the PID controller instead of the motors (CrazyPAD's controller_data files:
+``controller.cmd_thrust/cmd_roll/cmd_pitch/cmd_yaw``, the gyro as ``controller.r_roll/r_pitch/r_yaw``,
+no motors and no attitude estimate) is converted from what the firmware does with them:
+
+- the motor commands are rebuilt by the firmware's legacy power distribution
+  (:func:`motor_commands_of_controller`), the mixer between those outputs and motor.m1..m4; on CrazyPAD,
+  the in-flight median command of each rotor, relative to their mean, comes out as the motor_data files
+  of the same session log it (within 0.01 on every condition);
+- roll, pitch and yaw: the attitude setpoints (``controller.roll/pitch/yaw``, pitch with the legacy sign)
+  blended with the gyro (``r_pitch`` is the legacy-signed pitch rate, so q is its negative; its mean while
+  the motors were off before take-off, the bias, removed) by a complementary filter
+  (:func:`_attitude_from_gyro`); ``p, q, r`` are written too. The notes say how far the result lies from
+  the setpoints in flight.
+
 Rotor k of the airframe is Bitcraze's motor M_k matched by geometry (M1 front-right, M2 rear-right,
 M3 rear-left, M4 front-left; :data:`~multirotor_ros.io.rotor_channels.CRAZYFLIE_LAYOUT`) unless
 ``--rotor-channels`` says otherwise.
@@ -61,6 +75,7 @@ from multirotor_ros.io.log_builder import ConversionError, LogBuilder
 from multirotor_ros.io.resample import sort_unique
 from multirotor_ros.io.rotor_channels import CRAZYFLIE_LAYOUT, RotorChannelError, resolve_rotor_channels
 from multirotor_ros.model.airframe import Airframe
+from multirotor_ros.model.rotation import euler_rates_matrix
 
 USD_MAGIC = 0xBC
 CRAZYFLIE_GRAVITY_M_S2 = 9.81
@@ -73,6 +88,17 @@ FIRMWARE_FULL_SCALE_THRUST_G = 60.0
 # The applied voltage agrees with motor.m (the compensation held) within this share of full scale: the
 # duty is an integer and the logged battery voltage a sample of what the firmware filtered.
 COMPENSATION_TOLERANCE = 0.005
+# CrazyPAD's controller_data files log the PID controller (controller_pid.c) instead of the motors.
+CONTROLLER_OUTPUTS = tuple(f"controller.cmd_{axis}" for axis in ("thrust", "roll", "pitch", "yaw"))
+# Body rates [rad/s] as the controller saw them: gyro x, minus gyro y (the legacy pitch sign), gyro z.
+CONTROLLER_GYRO = ("controller.r_roll", "controller.r_pitch", "controller.r_yaw")
+# The attitude setpoints [deg] the attitude loop follows (pitch with the legacy sign).
+CONTROLLER_ATTITUDE_SETPOINTS = ("controller.roll", "controller.pitch", "controller.yaw")
+# Crossover of the attitude derived from the setpoints and the gyro: about the attitude loop's response
+# time (a step of the setpoint is followed within a few tenths of a second).
+ATTITUDE_BLEND_TAU_S = 0.5
+# Motors off before take-off for at least this long: the gyro's mean there is its bias.
+MIN_REST_S = 0.2
 # Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
 HELD_HEADING_STD_DEG = 2.6
 _PREAMBLE = struct.Struct("<BHH")
@@ -239,6 +265,82 @@ def _pitch_from_specific_force(accel_W: np.ndarray, yaw: np.ndarray) -> tuple[np
     return pitch, implied_roll
 
 
+def motor_commands_of_controller(outputs: np.ndarray) -> np.ndarray:
+    """motor.m1..m4 as the firmware's legacy power distribution makes them from the controller's outputs.
+
+    ``outputs``: (n, 4) thrust, roll, pitch, yaw commands. crazyflie-firmware power_distribution_quadrotor.c
+    (powerDistributionLegacy, the PID controller's mode; power_distribution_stock.c's X formation before it):
+    r = roll / 2 and p = pitch / 2 as int16 (truncated), m1 = T - r + p + Y, m2 = T - r - p - Y,
+    m3 = T + r - p + Y, m4 = T + r + p - Y stored as integers; powerDistributionCap then lowers all four by
+    what the highest exceeds 65535 and stops each at 0 (the idle thrust of a brushed Crazyflie).
+    """
+    thrust, roll, pitch, yaw = np.asarray(outputs, dtype=float).T
+    r, p = np.trunc(roll / 2.0), np.trunc(pitch / 2.0)
+    uncapped = np.trunc(
+        np.column_stack(
+            [thrust - r + p + yaw, thrust - r - p - yaw, thrust + r - p + yaw, thrust + r + p - yaw]
+        )
+    )
+    excess = np.clip(uncapped.max(axis=1) - MOTOR_COMMAND_FULL_SCALE, 0.0, None)
+    return np.clip(uncapped - excess[:, None], 0.0, None)
+
+
+def _attitude_from_gyro(event: UsdEvent, warnings: list[str]) -> tuple[np.ndarray, np.ndarray, str]:
+    """roll, pitch, yaw from the controller's gyro and attitude setpoints, the bias-free body rates, a note.
+
+    A complementary filter: the attitude loop follows its setpoints, so below
+    :data:`ATTITUDE_BLEND_TAU_S` the attitude is the setpoint's, above it the gyro's (turned into Euler
+    rates at the setpoint's attitude). Gyro integration alone drifts and takes a landing's knocks, which
+    100 Hz samples miss, for good (4-11 deg on CrazyPAD's flights); a setpoint alone misses how the vehicle
+    follows it. With the motors off the firmware sets the setpoint to the estimator's attitude.
+    """
+    t = event.stamps_s
+    rates = _columns(event, CONTROLLER_GYRO) * np.array([1.0, -1.0, 1.0])
+    motors_off = event.column(CONTROLLER_OUTPUTS[0]) <= 0.0
+    first_on = int(np.argmin(motors_off)) if not motors_off.all() else t.size
+    if first_on and t[first_on - 1] - t[0] >= MIN_REST_S:
+        bias = rates[:first_on].mean(axis=0)
+        bias_note = (
+            f"gyro bias ({', '.join(f'{b:+.4f}' for b in bias)}) rad/s, its mean over the "
+            f"{t[first_on - 1] - t[0]:.1f} s with the motors off before take-off, removed"
+        )
+    else:
+        bias = np.zeros(3)
+        bias_note = f"gyro bias NOT removed: less than {MIN_REST_S:g} s with the motors off before take-off"
+        warnings.append(f"the gyro's bias is unknown: {bias_note}")
+    rates = rates - bias
+    setpoint = np.radians(_columns(event, CONTROLLER_ATTITUDE_SETPOINTS)) * np.array([1.0, -1.0, 1.0])
+    setpoint[:, 2] = np.unwrap(setpoint[:, 2])
+    euler_rates = np.linalg.solve(euler_rates_matrix(setpoint), rates[..., None])[..., 0]
+    dt = np.diff(t, prepend=t[0])
+    keep = ATTITUDE_BLEND_TAU_S / (ATTITUDE_BLEND_TAU_S + dt)
+    euler = np.empty_like(setpoint)
+    euler[0] = setpoint[0]
+    for k in range(1, t.size):
+        euler[k] = keep[k] * (euler[k - 1] + euler_rates[k] * dt[k]) + (1.0 - keep[k]) * setpoint[k]
+    euler[:, 2] = np.angle(np.exp(1j * euler[:, 2]))
+    flying = ~motors_off
+    rms = (
+        np.degrees(np.sqrt(np.mean((euler[flying] - setpoint[flying]) ** 2, axis=0)))
+        if flying.any()
+        else None
+    )
+    note = (
+        "roll,pitch,yaw NOT LOGGED, derived: the controller's attitude setpoints (controller.roll, "
+        "-controller.pitch, controller.yaw [deg]) blended with the gyro (controller.r_roll, "
+        f"-controller.r_pitch, controller.r_yaw [rad/s], FLU) by a complementary filter of "
+        f"{ATTITUDE_BLEND_TAU_S:g} s (the attitude loop follows its setpoints; the gyro says how); "
+        + bias_note
+    )
+    if rms is not None:
+        note += (
+            f"; in flight the result differs from the setpoints by {rms[0]:.2f}, {rms[1]:.2f} and "
+            f"{rms[2]:.2f} deg RMS"
+        )
+    warnings.append("the attitude is not logged: derived from the controller's setpoints and gyro (notes)")
+    return euler, rates, note
+
+
 def _columns(event: UsdEvent, names: Sequence[str]) -> np.ndarray:
     return np.column_stack([event.column(name) for name in names])
 
@@ -308,63 +410,16 @@ def _applied_voltage_commands(
     return commands, how + agreement
 
 
-def convert_crazyflie_usd(
-    path: str | Path, airframe: Airframe, rotor_channels: str | None = None
-) -> tuple[FlightLog, list[str]]:
-    """Convert a usd log; returns the log and warnings for the user."""
-    path = Path(path)
-    usd = read_usd_log(path)
-    warnings = list(usd.warnings)
-    position_names = [f"stateEstimate.{axis}" for axis in "xyz"]
-    motion = usd.event_with(*position_names)
-    if motion is None:
-        logged = sorted(
-            {name for event in usd.events.values() if event.stamps_s.size for name in event.variables}
-        )
-        raise ConversionError(
-            f"{path}: no records with stateEstimate.x, .y and .z (the position is the time base); "
-            f"logged: {', '.join(logged) or 'nothing'}"
-        )
-    n_motors = 4
-    motor_names = [f"motor.m{k}" for k in range(1, n_motors + 1)]
-    pwm_names = [f"pwm.m{k}_pwm" for k in range(1, n_motors + 1)]
-    motors = usd.event_with(*motor_names)
-    label = "motor.m1..m4 (motor power command before battery compensation) / 65535"
-    if motors is None:
-        motors = usd.event_with(*pwm_names)
-        motor_names, label = pwm_names, "pwm.m1_pwm..m4_pwm (duty cycle after battery compensation) / 65535"
-        if motors is None:
-            raise ConversionError(
-                f"{path}: no motor commands (motor.m1..m4 or pwm.m1_pwm..m4_pwm): a rotor group is needed; "
-                "CrazyPAD's controller_data files log the controller, its motor_data files the motors"
-            )
-    t, rows, dropped = sort_unique(motion.stamps_s, np.arange(motion.stamps_s.size, dtype=float))
-    if dropped:
-        warnings.append(f"{dropped} records with repeated stamps dropped")
-    index = rows.astype(int)
-    event = UsdEvent(motion.name, motion.variables, t, motion.values[index])
-    if motors is motion:
-        motors = event
-    builder = LogBuilder(t, f"the stamps of the {event.name!r} records (stateEstimate.x/y/z)")
-    taken = ["x,y,z: stateEstimate.x/y/z [m], Crazyflie world frame (x forward at start-up, y left, z up)"]
-    builder.put(["x", "y", "z"], _columns(event, position_names))
-    velocity_names = [f"stateEstimate.v{axis}" for axis in "xyz"]
-    if event.has(*velocity_names):
-        builder.put(["vx", "vy", "vz"], _columns(event, velocity_names))
-        taken.append("vx,vy,vz: stateEstimate.vx/vy/vz [m/s], world")
-    accel_names = [f"stateEstimate.a{axis}" for axis in "xyz"]
-    accel_W = _columns(event, accel_names) * CRAZYFLIE_GRAVITY_M_S2 if event.has(*accel_names) else None
-    if accel_W is not None:
-        builder.put(["ax", "ay", "az"], accel_W)
-        taken.append(
-            f"ax,ay,az: stateEstimate.ax/ay/az [g, world, gravity removed] x {CRAZYFLIE_GRAVITY_M_S2}"
-        )
-
-    if not event.has("stateEstimate.roll"):
-        raise ConversionError(
-            f"{path}: no stateEstimate.roll in the {event.name!r} records: "
-            "the attitude is needed (log it with the position)"
-        )
+def _estimated_attitude(
+    path: Path,
+    event: UsdEvent,
+    accel_W: np.ndarray | None,
+    velocity_names: Sequence[str],
+    taken: list[str],
+    warnings: list[str],
+) -> np.ndarray:
+    """roll, pitch, yaw [rad]: the estimator's roll and yaw, pitch logged or derived (module docstring)."""
+    t = event.stamps_s
     roll = np.radians(event.column("stateEstimate.roll"))
     if event.has("stateEstimate.yaw"):
         yaw = np.radians(event.column("stateEstimate.yaw"))
@@ -403,7 +458,84 @@ def convert_crazyflie_usd(
             f"{path}: stateEstimate.pitch is not logged and cannot be derived without "
             "stateEstimate.ax/ay/az or vx/vy/vz: log one of them"
         )
-    builder.put(["roll", "pitch", "yaw"], np.column_stack([roll, pitch, yaw]))
+    return np.column_stack([roll, pitch, yaw])
+
+
+def convert_crazyflie_usd(
+    path: str | Path, airframe: Airframe, rotor_channels: str | None = None
+) -> tuple[FlightLog, list[str]]:
+    """Convert a usd log; returns the log and warnings for the user."""
+    path = Path(path)
+    usd = read_usd_log(path)
+    warnings = list(usd.warnings)
+    position_names = [f"stateEstimate.{axis}" for axis in "xyz"]
+    motion = usd.event_with(*position_names)
+    if motion is None:
+        logged = sorted(
+            {name for event in usd.events.values() if event.stamps_s.size for name in event.variables}
+        )
+        raise ConversionError(
+            f"{path}: no records with stateEstimate.x, .y and .z (the position is the time base); "
+            f"logged: {', '.join(logged) or 'nothing'}"
+        )
+    n_motors = 4
+    motor_names = [f"motor.m{k}" for k in range(1, n_motors + 1)]
+    pwm_names = [f"pwm.m{k}_pwm" for k in range(1, n_motors + 1)]
+    motors = usd.event_with(*motor_names)
+    label = "motor.m1..m4 (motor power command before battery compensation) / 65535"
+    if motors is None:
+        motors = usd.event_with(*pwm_names)
+        motor_names, label = pwm_names, "pwm.m1_pwm..m4_pwm (duty cycle after battery compensation) / 65535"
+    if motors is None:
+        motors = usd.event_with(*CONTROLLER_OUTPUTS)
+        motor_names = [f"motor.m{k} (rebuilt)" for k in range(1, n_motors + 1)]
+        label = (
+            "motor.m1..m4 NOT LOGGED, rebuilt from controller.cmd_thrust/cmd_roll/cmd_pitch/cmd_yaw by the "
+            "firmware's legacy power distribution (power_distribution_quadrotor.c), / 65535"
+        )
+        if motors is None:
+            raise ConversionError(
+                f"{path}: no motor commands (motor.m1..m4 or pwm.m1_pwm..m4_pwm) and no controller outputs "
+                f"({', '.join(CONTROLLER_OUTPUTS)}) to rebuild them from: a rotor group is needed"
+            )
+    t, rows, dropped = sort_unique(motion.stamps_s, np.arange(motion.stamps_s.size, dtype=float))
+    if dropped:
+        warnings.append(f"{dropped} records with repeated stamps dropped")
+    index = rows.astype(int)
+    event = UsdEvent(motion.name, motion.variables, t, motion.values[index])
+    if motors is motion:
+        motors = event
+    builder = LogBuilder(t, f"the stamps of the {event.name!r} records (stateEstimate.x/y/z)")
+    taken = ["x,y,z: stateEstimate.x/y/z [m], Crazyflie world frame (x forward at start-up, y left, z up)"]
+    builder.put(["x", "y", "z"], _columns(event, position_names))
+    velocity_names = [f"stateEstimate.v{axis}" for axis in "xyz"]
+    if event.has(*velocity_names):
+        builder.put(["vx", "vy", "vz"], _columns(event, velocity_names))
+        taken.append("vx,vy,vz: stateEstimate.vx/vy/vz [m/s], world")
+    accel_names = [f"stateEstimate.a{axis}" for axis in "xyz"]
+    accel_W = _columns(event, accel_names) * CRAZYFLIE_GRAVITY_M_S2 if event.has(*accel_names) else None
+    if accel_W is not None:
+        builder.put(["ax", "ay", "az"], accel_W)
+        taken.append(
+            f"ax,ay,az: stateEstimate.ax/ay/az [g, world, gravity removed] x {CRAZYFLIE_GRAVITY_M_S2}"
+        )
+
+    if event.has("stateEstimate.roll"):
+        builder.put(
+            ["roll", "pitch", "yaw"],
+            _estimated_attitude(path, event, accel_W, velocity_names, taken, warnings),
+        )
+    elif event.has(*CONTROLLER_GYRO, *CONTROLLER_ATTITUDE_SETPOINTS, CONTROLLER_OUTPUTS[0]):
+        euler, body_rates, how = _attitude_from_gyro(event, warnings)
+        builder.put(["roll", "pitch", "yaw"], euler)
+        builder.put(["p", "q", "r"], body_rates)
+        taken.append(how + "; p,q,r: the same bias-free rates")
+    else:
+        raise ConversionError(
+            f"{path}: no stateEstimate.roll in the {event.name!r} records, nor the controller's gyro and "
+            f"attitude setpoints ({', '.join(CONTROLLER_GYRO + CONTROLLER_ATTITUDE_SETPOINTS)}) to derive it "
+            "from: the attitude is needed (log it with the position)"
+        )
 
     try:
         channels, channel_note = resolve_rotor_channels(
@@ -411,7 +543,12 @@ def convert_crazyflie_usd(
         )
     except RotorChannelError as error:
         raise ConversionError(f"{path}: {error}") from None
-    commands = _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE
+    if motors.has(*motor_names):
+        commands = _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE
+    else:
+        commands = (
+            motor_commands_of_controller(_columns(motors, CONTROLLER_OUTPUTS)) / MOTOR_COMMAND_FULL_SCALE
+        )
     applied = _applied_voltage_commands(
         motors, None if motor_names == pwm_names else commands, pwm_names, warnings
     )
