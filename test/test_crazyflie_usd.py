@@ -363,3 +363,65 @@ def test_every_controller_flight_converts_and_its_rebuilt_commands_balance_as_th
         if peers:
             nearest = min(np.abs(_relative_hover_commands(peer, crazyflie) - shares).max() for peer in peers)
             assert nearest < 0.02, (path, shares, nearest)
+
+
+# The header of CrazyPAD's CSV files (data/motor_data/*/E*_log*.csv upstream): cfusdlog.py's decoding.
+CRAZYPAD_CSV_HEADER = (
+    "timestamp,motor.m1,motor.m2,motor.m3,motor.m4,pwm.m1_pwm,pwm.m2_pwm,pwm.m3_pwm,pwm.m4_pwm,pm.vbatMV,"
+    "stateEstimate.x,stateEstimate.y,stateEstimate.z,stateEstimate.vx,stateEstimate.vy,stateEstimate.vz,"
+    "stateEstimate.ax,stateEstimate.ay,stateEstimate.az,stateEstimate.roll,stateEstimate.yaw"
+)
+
+
+def csv_export(binary: Path, out: Path) -> Path:
+    """The flight as CrazyPAD's CSV files hold it: timestamp [ms] from the first record, the variables."""
+    event = read_usd_log(binary).event_with("stateEstimate.x")
+    assert event is not None
+    stamps_ms = (event.stamps_s - event.stamps_s[0]) * 1e3
+    rows = [
+        ",".join(repr(float(v)) for v in (t, *values))
+        for t, values in zip(stamps_ms, event.values, strict=True)
+    ]
+    out.write_text(",".join(("timestamp", *event.variables)) + "\n" + "\n".join(rows) + "\n")
+    return out
+
+
+@needs_crazypad
+def test_a_flight_exported_as_csv_converts_as_its_binary_log_does(crazyflie, tmp_path) -> None:
+    for binary in (
+        CRAZYPAD / "motor_data" / "normal_flight" / "E9_log00",
+        CRAZYPAD / "controller_data" / "cut_propeller_M3_3mm" / "E8_log00",
+    ):
+        exported = csv_export(binary, tmp_path / f"{binary.name}.csv")
+        if binary.parent.parent.name == "motor_data":
+            assert exported.read_text().split("\n", 1)[0] == CRAZYPAD_CSV_HEADER
+        assert detect_format(exported) == "crazyflie-usd"
+        from_binary, from_csv = convert(binary, crazyflie).log, convert(exported, crazyflie).log
+        np.testing.assert_allclose(from_csv.t, from_binary.t, atol=1e-9)
+        assert from_csv.columns.keys() == from_binary.columns.keys()
+        for name, column in from_binary.columns.items():
+            np.testing.assert_allclose(from_csv.columns[name], column, rtol=1e-9, atol=1e-12, err_msg=name)
+        assert from_csv.metadata["converted_from"].endswith(
+            "(CSV export of a Bitcraze usd log (timestamp in ms))"
+        )
+
+
+def test_a_damaged_csv_export_is_refused_with_line_and_column(crazyflie, tmp_path) -> None:
+    path = tmp_path / "log.csv"
+    good_row = "0.0," + ",".join(["1.0"] * 20)
+    path.write_text(
+        CRAZYPAD_CSV_HEADER + "\n" + good_row + "\n" + good_row.replace("0.0,", "10.0,", 1) + ",7\n"
+    )
+    with pytest.raises(ConversionError, match=r"log.csv:3: 22 cells, the header has 21"):
+        convert(path, crazyflie)
+    path.write_text(
+        CRAZYPAD_CSV_HEADER + "\n" + good_row + "\n" + good_row.replace(",1.0", ",nope", 3) + "\n"
+    )
+    with pytest.raises(ConversionError, match=r"log.csv:3: column motor.m1: not a number"):
+        convert(path, crazyflie)
+    microseconds = "\n".join(f"{k * 10_000}.0," + ",".join(["1.0"] * 20) for k in range(5))
+    path.write_text(CRAZYPAD_CSV_HEADER + "\n" + microseconds + "\n")
+    with pytest.raises(
+        ConversionError, match=r"column timestamp: median step 10000 between records; it is read in ms"
+    ):
+        convert(path, crazyflie)

@@ -27,9 +27,11 @@ Formats (--format auto looks at the content):
   dataflash  ArduPilot .bin: XKF1/NKF1 or POS (time base), ATT, IMU, RCOU (PWM), PARM.
   ddd-csv    ethz-asl data-driven-dynamics CSV (timestamp, u0.., vx.. world NED, q0.. FRD->NED,
              acc_b.. FRD specific force): world velocity and gravity-free acceleration.
-  crazyflie-usd  Bitcraze micro-SD card log (magic 0xBC): stateEstimate.x/y/z (time base), vx..,
-             ax.. [g], roll/yaw [deg] (pitch derived from the acceleration when not logged),
-             motor.m1..m4 / 65535 -> u_k (normalized), pm.vbatMV -> battery_v.
+  crazyflie-usd  Bitcraze micro-SD card log (magic 0xBC), or its CSV export (timestamp [ms], then
+             the variables by name): stateEstimate.x/y/z (time base), vx.., ax.. [g], roll/yaw [deg]
+             (pitch derived from the acceleration when not logged), motor.m1..m4 / 65535 -> u_k
+             (normalized; rebuilt by the firmware's mixer from controller.cmd_* when only the
+             controller is logged), pm.vbatMV -> battery_v.
 
 Streams at other rates are brought onto the time base by linear interpolation (measurements),
 zero-order hold (actuator outputs, commands) or quaternion interpolation (attitude); cells stay

@@ -48,18 +48,22 @@ def detect_format(path: str | Path) -> str:
         return "dataflash"
     if head.startswith(_CRAZYFLIE_USD_STARTS):
         return "crazyflie-usd"
+    from multirotor_ros.io.crazyflie_usd import looks_like_usd_csv
     from multirotor_ros.io.ddd_csv import looks_like_ddd_csv
 
     first_line = head.split(b"\n", 1)[0].decode("utf-8", errors="replace")
-    if looks_like_ddd_csv([cell.strip() for cell in first_line.split(",")]):
+    header = [cell.strip() for cell in first_line.split(",")]
+    if looks_like_ddd_csv(header):
         return "ddd-csv"
+    if looks_like_usd_csv(header):
+        return "crazyflie-usd"
     if head.startswith(b"#") or first_line.startswith("t,"):
         raise ConversionError(
             f"{path}: already a flight log (metadata or a 't,...' header): nothing to convert"
         )
     raise ConversionError(
         f"{path}: unknown format (not a rosbag2 directory, ULog, dataflash .bin, "
-        "data-driven-dynamics CSV or Crazyflie usd log); give --format"
+        "data-driven-dynamics CSV or Crazyflie usd log, binary or CSV); give --format"
     )
 
 

@@ -10,7 +10,9 @@ The file describes itself (Bitcraze's own reader is tools/usdlog/cfusdlog.py in 
 - a ``u32`` CRC-32 (zlib's) of everything before it.
 
 A file cut short (the card pulled while logging, a power loss) has no CRC at its end: the records are
-read up to the last whole one and the user is told how many bytes were left.
+read up to the last whole one and the user is told how many bytes were left. The same log decoded by
+Bitcraze's cfusdlog.py and written as CSV (``timestamp`` [ms], then the variables by name; CrazyPAD ships
+every flight in both forms) is read by :func:`read_usd_csv` and converted the same way.
 
 What is taken (Crazyflie's world frame is x forward at start-up, y left, z up, i.e. ENU-like; body
 frame x forward, y left, z up, i.e. FLU; a missing variable is left out, never invented):
@@ -101,6 +103,9 @@ ATTITUDE_BLEND_TAU_S = 0.5
 MIN_REST_S = 0.2
 # Largest in-flight yaw standard deviation over the 27 CrazyPAD motor_data flights that log yaw (2.6 deg).
 HELD_HEADING_STD_DEG = 2.6
+# The CSV export's time column [ms], and the longest median step between its records read as ms (1 Hz).
+CSV_TIME_COLUMN = "timestamp"
+MAX_CSV_PERIOD_MS = 1000.0
 _PREAMBLE = struct.Struct("<BHH")
 _RECORD_HEADERS = {1: (struct.Struct("<HI"), 1e-3), 2: (struct.Struct("<HQ"), 1e-6)}
 _TYPE_CODES = frozenset("bBhHiIqQfd?")
@@ -132,6 +137,13 @@ class UsdLog:
     version: int
     events: dict[str, UsdEvent]
     warnings: list[str] = field(default_factory=list)
+    container: str = "binary"  # or "csv": Bitcraze's decoding written out (read_usd_csv)
+
+    def describe(self) -> str:
+        """What the file was, for the flight log's notes."""
+        if self.container == "csv":
+            return "CSV export of a Bitcraze usd log (timestamp in ms)"
+        return f"Bitcraze usd log version {self.version}"
 
     def event_with(self, *names: str) -> UsdEvent | None:
         """The event with records that logs all of ``names``, if any."""
@@ -170,6 +182,70 @@ class _Cursor:
 
 
 _U16 = struct.Struct("<H")
+
+
+def looks_like_usd_csv(header: Sequence[str]) -> bool:
+    """A CSV export of a usd log: ``timestamp`` first, then the firmware's ``group.name`` variables."""
+    return len(header) > 1 and header[0] == CSV_TIME_COLUMN and all("." in name for name in header[1:])
+
+
+def read_usd_csv(path: str | Path) -> UsdLog:
+    """A usd log as Bitcraze's cfusdlog.py decodes it, written out as CSV (CrazyPAD ships both forms).
+
+    One row per record of one event: ``timestamp`` [ms] (from the first record, or the Crazyflie's clock),
+    then the event's variables by their firmware names; the result is one event, ``fixedFrequency``.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConversionError(f"{path}: cannot read as text: {error}") from None
+    header = [cell.strip() for cell in lines[0].split(",")] if lines else []
+    if not looks_like_usd_csv(header):
+        raise ConversionError(
+            f"{path}:1: not a usd log's CSV export: the header must be '{CSV_TIME_COLUMN}' and then "
+            f"firmware variables (group.name); found {', '.join(header[:4]) or 'nothing'}"
+        )
+    rows = []
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise ConversionError(f"{path}:{number}: {len(cells)} cells, the header has {len(header)}")
+        try:
+            rows.append([float(cell) for cell in cells])
+        except ValueError:
+            column = next(name for name, cell in zip(header, cells, strict=True) if not _is_number(cell))
+            raise ConversionError(f"{path}:{number}: column {column}: not a number") from None
+    if len(rows) < 2:
+        raise ConversionError(f"{path}: {len(rows)} records: nothing to convert")
+    values = np.array(rows)
+    stamps_ms = values[:, 0]
+    period_ms = float(np.median(np.diff(stamps_ms)))
+    if not 0.0 < period_ms <= MAX_CSV_PERIOD_MS:
+        raise ConversionError(
+            f"{path}: column {CSV_TIME_COLUMN}: median step {period_ms:g} between records; it is read in ms "
+            f"(as cfusdlog.py and CrazyPAD write it), where a logging period is at most {MAX_CSV_PERIOD_MS:g}"
+        )
+    event = UsdEvent("fixedFrequency", tuple(header[1:]), stamps_ms * 1e-3, values[:, 1:])
+    return UsdLog(0, {event.name: event}, [], container="csv")
+
+
+def _starts_with_magic(path: Path) -> bool:
+    try:
+        with path.open("rb") as stream:
+            return stream.read(1) == bytes([USD_MAGIC])
+    except OSError as error:
+        raise ConversionError(f"{path}: cannot read: {error.strerror or error}") from None
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
 
 
 def read_usd_log(path: str | Path) -> UsdLog:
@@ -466,7 +542,7 @@ def convert_crazyflie_usd(
 ) -> tuple[FlightLog, list[str]]:
     """Convert a usd log; returns the log and warnings for the user."""
     path = Path(path)
-    usd = read_usd_log(path)
+    usd = read_usd_log(path) if _starts_with_magic(path) else read_usd_csv(path)
     warnings = list(usd.warnings)
     position_names = [f"stateEstimate.{axis}" for axis in "xyz"]
     motion = usd.event_with(*position_names)
@@ -577,7 +653,7 @@ def convert_crazyflie_usd(
             break
     first = {
         "source": "crazyflie_usd",
-        "converted_from": f"{path.name} (Bitcraze usd log version {usd.version})",
+        "converted_from": f"{path.name} ({usd.describe()})",
         "airframe": airframe.name,
         "frames": "Crazyflie world (z up) and body (x forward, y left, z up) are ENU/FLU-like: no change",
         "derived": "; ".join(taken),
