@@ -316,6 +316,8 @@ def test_a_controller_log_gets_the_firmware_mixer_s_motor_commands_and_a_derived
     assert "differs from the setpoints by 0.00, 0.00 and 0.00 deg RMS" in derived
     assert "rebuilt from controller.cmd_thrust/cmd_roll/cmd_pitch/cmd_yaw" in log.metadata["resampling"]
     assert any("the attitude is not logged" in warning for warning in conversion.warnings)
+    assert not any("pwm.m" in warning for warning in conversion.warnings), "no duty cycle was taken"
+    assert log.metadata["rotor_channels"].startswith("1,2,3,4 (motor.m1, motor.m2, motor.m3, motor.m4)")
 
     # A turn the setpoint does not follow yet: the gyro gives it at once, the setpoint wins within seconds.
     path.write_bytes(
@@ -417,7 +419,7 @@ def test_a_damaged_csv_export_is_refused_with_line_and_column(crazyflie, tmp_pat
     path.write_text(
         CRAZYPAD_CSV_HEADER + "\n" + good_row + "\n" + good_row.replace(",1.0", ",nope", 3) + "\n"
     )
-    with pytest.raises(ConversionError, match=r"log.csv:3: column motor.m1: not a number"):
+    with pytest.raises(ConversionError, match=r"log.csv:3: column 'motor.m1': not a number: 'nope'"):
         convert(path, crazyflie)
     microseconds = "\n".join(f"{k * 10_000}.0," + ",".join(["1.0"] * 20) for k in range(5))
     path.write_text(CRAZYPAD_CSV_HEADER + "\n" + microseconds + "\n")

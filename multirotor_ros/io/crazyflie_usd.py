@@ -48,12 +48,12 @@ no motors and no attitude estimate) is converted from what the firmware does wit
 
 - the motor commands are rebuilt by the firmware's legacy power distribution
   (:func:`motor_commands_of_controller`), the mixer between those outputs and motor.m1..m4; on CrazyPAD,
-  the in-flight median command of each rotor, relative to their mean, comes out as the motor_data files
-  of the same session log it (within 0.01 on every condition);
+  the in-flight median command of each rotor, relative to their mean, comes out within 0.016 of a
+  motor_data flight of the same session and condition (test_crazyflie_usd.py);
 - roll, pitch and yaw: the attitude setpoints (``controller.roll/pitch/yaw``, pitch with the legacy sign)
   blended with the gyro (``r_pitch`` is the legacy-signed pitch rate, so q is its negative; its mean while
   the motors were off before take-off, the bias, removed) by a complementary filter
-  (:func:`_attitude_from_gyro`); ``p, q, r`` are written too. The notes say how far the result lies from
+  (:func:`_attitude_from_controller`); ``p, q, r`` are written too. The notes say how far the result lies from
   the setpoints in flight.
 
 Rotor k of the airframe is Bitcraze's motor M_k matched by geometry (M1 front-right, M2 rear-right,
@@ -73,7 +73,7 @@ import numpy as np
 
 from multirotor_ros.io.derive import SavitzkyGolay, differentiate
 from multirotor_ros.io.flight_log import FlightLog
-from multirotor_ros.io.log_builder import ConversionError, LogBuilder
+from multirotor_ros.io.log_builder import ConversionError, LogBuilder, read_numeric_csv
 from multirotor_ros.io.resample import sort_unique
 from multirotor_ros.io.rotor_channels import CRAZYFLIE_LAYOUT, RotorChannelError, resolve_rotor_channels
 from multirotor_ros.model.airframe import Airframe
@@ -196,31 +196,15 @@ def read_usd_csv(path: str | Path) -> UsdLog:
     then the event's variables by their firmware names; the result is one event, ``fixedFrequency``.
     """
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as error:
-        raise ConversionError(f"{path}: cannot read as text: {error}") from None
-    header = [cell.strip() for cell in lines[0].split(",")] if lines else []
+    header, values = read_numeric_csv(path)
     if not looks_like_usd_csv(header):
         raise ConversionError(
-            f"{path}:1: not a usd log's CSV export: the header must be '{CSV_TIME_COLUMN}' and then "
-            f"firmware variables (group.name); found {', '.join(header[:4]) or 'nothing'}"
+            f"{path}:1: neither a usd log (first byte 0x{USD_MAGIC:02X}) nor its CSV export (a header of "
+            f"'{CSV_TIME_COLUMN}' and then firmware variables, group.name); found "
+            f"{', '.join(header[:4]) or 'nothing'}"
         )
-    rows = []
-    for number, line in enumerate(lines[1:], start=2):
-        if not line.strip():
-            continue
-        cells = line.split(",")
-        if len(cells) != len(header):
-            raise ConversionError(f"{path}:{number}: {len(cells)} cells, the header has {len(header)}")
-        try:
-            rows.append([float(cell) for cell in cells])
-        except ValueError:
-            column = next(name for name, cell in zip(header, cells, strict=True) if not _is_number(cell))
-            raise ConversionError(f"{path}:{number}: column {column}: not a number") from None
-    if len(rows) < 2:
-        raise ConversionError(f"{path}: {len(rows)} records: nothing to convert")
-    values = np.array(rows)
+    if len(values) < 2:
+        raise ConversionError(f"{path}: {len(values)} records: nothing to convert")
     stamps_ms = values[:, 0]
     period_ms = float(np.median(np.diff(stamps_ms)))
     if not 0.0 < period_ms <= MAX_CSV_PERIOD_MS:
@@ -238,14 +222,6 @@ def _starts_with_magic(path: Path) -> bool:
             return stream.read(1) == bytes([USD_MAGIC])
     except OSError as error:
         raise ConversionError(f"{path}: cannot read: {error.strerror or error}") from None
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
 
 
 def read_usd_log(path: str | Path) -> UsdLog:
@@ -361,14 +337,15 @@ def motor_commands_of_controller(outputs: np.ndarray) -> np.ndarray:
     return np.clip(uncapped - excess[:, None], 0.0, None)
 
 
-def _attitude_from_gyro(event: UsdEvent, warnings: list[str]) -> tuple[np.ndarray, np.ndarray, str]:
+def _attitude_from_controller(event: UsdEvent, warnings: list[str]) -> tuple[np.ndarray, np.ndarray, str]:
     """roll, pitch, yaw from the controller's gyro and attitude setpoints, the bias-free body rates, a note.
 
     A complementary filter: the attitude loop follows its setpoints, so below
     :data:`ATTITUDE_BLEND_TAU_S` the attitude is the setpoint's, above it the gyro's (turned into Euler
     rates at the setpoint's attitude). Gyro integration alone drifts and takes a landing's knocks, which
-    100 Hz samples miss, for good (4-11 deg on CrazyPAD's flights); a setpoint alone misses how the vehicle
-    follows it. With the motors off the firmware sets the setpoint to the estimator's attitude.
+    100 Hz samples miss, for good (4-11 deg on the two CrazyPAD flights checked); a setpoint alone misses
+    how the vehicle follows it. With the motors off the firmware sets the setpoint to the estimator's
+    attitude.
     """
     t = event.stamps_s
     rates = _columns(event, CONTROLLER_GYRO) * np.array([1.0, -1.0, 1.0])
@@ -559,12 +536,12 @@ def convert_crazyflie_usd(
     pwm_names = [f"pwm.m{k}_pwm" for k in range(1, n_motors + 1)]
     motors = usd.event_with(*motor_names)
     label = "motor.m1..m4 (motor power command before battery compensation) / 65535"
-    if motors is None:
-        motors = usd.event_with(*pwm_names)
-        motor_names, label = pwm_names, "pwm.m1_pwm..m4_pwm (duty cycle after battery compensation) / 65535"
+    if motors is None and (duty := usd.event_with(*pwm_names)) is not None:
+        motors, motor_names = duty, pwm_names
+        label = "pwm.m1_pwm..m4_pwm (duty cycle after battery compensation) / 65535"
+    rebuilt = motors is None
     if motors is None:
         motors = usd.event_with(*CONTROLLER_OUTPUTS)
-        motor_names = [f"motor.m{k} (rebuilt)" for k in range(1, n_motors + 1)]
         label = (
             "motor.m1..m4 NOT LOGGED, rebuilt from controller.cmd_thrust/cmd_roll/cmd_pitch/cmd_yaw by the "
             "firmware's legacy power distribution (power_distribution_quadrotor.c), / 65535"
@@ -602,7 +579,7 @@ def convert_crazyflie_usd(
             _estimated_attitude(path, event, accel_W, velocity_names, taken, warnings),
         )
     elif event.has(*CONTROLLER_GYRO, *CONTROLLER_ATTITUDE_SETPOINTS, CONTROLLER_OUTPUTS[0]):
-        euler, body_rates, how = _attitude_from_gyro(event, warnings)
+        euler, body_rates, how = _attitude_from_controller(event, warnings)
         builder.put(["roll", "pitch", "yaw"], euler)
         builder.put(["p", "q", "r"], body_rates)
         taken.append(how + "; p,q,r: the same bias-free rates")
@@ -619,12 +596,12 @@ def convert_crazyflie_usd(
         )
     except RotorChannelError as error:
         raise ConversionError(f"{path}: {error}") from None
-    if motors.has(*motor_names):
-        commands = _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE
-    else:
+    if rebuilt:
         commands = (
             motor_commands_of_controller(_columns(motors, CONTROLLER_OUTPUTS)) / MOTOR_COMMAND_FULL_SCALE
         )
+    else:
+        commands = _columns(motors, motor_names) / MOTOR_COMMAND_FULL_SCALE
     applied = _applied_voltage_commands(
         motors, None if motor_names == pwm_names else commands, pwm_names, warnings
     )

@@ -31,14 +31,13 @@ Dropped: the unnamed index, old_index and aux1..aux6 (RC switch channels).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 
 from multirotor_ros.frames import frd_to_flu, ned_to_enu, quat_ned_frd_to_enu_flu
 from multirotor_ros.io.flight_log import FlightLog
-from multirotor_ros.io.log_builder import ConversionError, LogBuilder
+from multirotor_ros.io.log_builder import ConversionError, LogBuilder, read_numeric_csv
 from multirotor_ros.io.rotor_channels import RotorChannelError, resolve_rotor_channels
 from multirotor_ros.model.airframe import Airframe
 from multirotor_ros.model.rotation import quat_to_matrix
@@ -53,30 +52,12 @@ def looks_like_ddd_csv(header: list[str]) -> bool:
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    try:
-        with path.open(newline="", encoding="utf-8") as stream:
-            reader = csv.reader(stream)
-            header = [name.strip() for name in next(reader, [])]
-            rows = list(reader)
-    except (OSError, UnicodeDecodeError) as error:
-        raise ConversionError(f"{path}: cannot read as UTF-8 CSV: {error}") from None
+    header, values = read_numeric_csv(path)
     missing = [name for name in REQUIRED if name not in header]
     if missing:
         raise ConversionError(
             f"{path}:1: not a data-driven-dynamics CSV: missing column(s) {', '.join(missing)}"
         )
-    values = np.full((len(rows), len(header)), np.nan)
-    for row_index, row in enumerate(rows):
-        if len(row) != len(header):
-            raise ConversionError(f"{path}:{row_index + 2}: {len(row)} cells, the header has {len(header)}")
-        for col, cell in enumerate(row):
-            if cell.strip():
-                try:
-                    values[row_index, col] = float(cell)
-                except ValueError:
-                    raise ConversionError(
-                        f"{path}:{row_index + 2}: column {header[col]!r}: not a number: {cell!r}"
-                    ) from None
     return header, values
 
 

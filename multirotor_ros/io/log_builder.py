@@ -15,7 +15,9 @@ A cell stays empty before a stream's first sample, after its last and inside gap
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -30,6 +32,30 @@ GAP_PERIODS = 3.0
 
 class ConversionError(ValueError):
     """A source log that cannot be converted; the message names the file and what is missing."""
+
+
+def read_numeric_csv(path: Path) -> tuple[list[str], np.ndarray]:
+    """A source CSV's header and cells as floats (an empty cell is NaN); a bad row names line and column."""
+    try:
+        with path.open(newline="", encoding="utf-8") as stream:
+            reader = csv.reader(stream)
+            header = [name.strip() for name in next(reader, [])]
+            rows = list(reader)
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConversionError(f"{path}: cannot read as UTF-8 CSV: {error}") from None
+    values = np.full((len(rows), len(header)), np.nan)
+    for row_index, row in enumerate(rows):
+        if len(row) != len(header):
+            raise ConversionError(f"{path}:{row_index + 2}: {len(row)} cells, the header has {len(header)}")
+        for col, cell in enumerate(row):
+            if cell.strip():
+                try:
+                    values[row_index, col] = float(cell)
+                except ValueError:
+                    raise ConversionError(
+                        f"{path}:{row_index + 2}: column {header[col]!r}: not a number: {cell!r}"
+                    ) from None
+    return header, values
 
 
 def _rate(ts: FloatArray) -> str:
