@@ -19,7 +19,7 @@ from ros_harness import NodeProcess, RosProbe
 from sensor_msgs.msg import JointState
 
 from multirotor_ros.diagnosis.campaign import FaultCase, fly_case
-from multirotor_ros.diagnosis.monitor import FlightMonitor, Refused
+from multirotor_ros.diagnosis.monitor import FlightMonitor, Refused, StepResult
 from multirotor_ros.diagnosis.record import FlightRecord
 from multirotor_ros.io.flight_log import read_flight_log, rotor_columns
 from multirotor_ros.model import state as S
@@ -135,6 +135,27 @@ def test_a_state_waits_for_the_rotor_speeds_of_its_time(x8, nominal_flight):
     assert monitor.state(stamp, p, v, q, w) == []  # the speeds of its time are not there yet
     (result,) = monitor.rotor_speeds(stamp, omega)
     assert result.stamp_ns == stamp and result.skipped is None and result.accel_residual_W is not None
+
+
+def test_states_before_the_first_rotor_speeds_are_skipped_as_expected_then_paired(x8, nominal_flight):
+    """An identifier joining a running simulator hears odometry (250 Hz) before rotor speeds (100 Hz)."""
+    rows = list(samples(nominal_flight))
+    for restarted in (False, True):
+        monitor = FlightMonitor(x8, [])
+        if restarted:  # a new time line forgets the old one's first report
+            feed(monitor, rows[:50])
+            monitor.restart()
+        early = [monitor.state(*row[:5]) for row in rows[50:53]]
+        assert early == [[], [], []]  # they wait for rotor speeds of their time
+        results = feed(monitor, rows[53:60])
+        first = [r for r in results if r.stamp_ns < rows[53][0]]
+        assert [r.skipped for r in first] == ["before the first motor_speeds"] * 3
+        assert all(
+            r.skipped_as_expected and "came before any rotor speeds" in r.skipped_detail for r in first
+        )
+        assert not any(r.skipped_as_expected for r in results if r.stamp_ns >= rows[53][0])
+    # Speeds that stop later are a fault of the input, and said so (test below).
+    assert not StepResult(0.0, 0, skipped="no recent motor_speeds").skipped_as_expected
 
 
 def test_monitor_refuses_repeated_and_older_stamps_and_non_finite_states(x8, nominal_flight):

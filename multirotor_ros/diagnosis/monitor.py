@@ -15,7 +15,8 @@ nanoseconds, already converted to SI, ENU/FLU) and
    if they come later (up to ``max_wait_s`` of stamps); a sample whose rotor speeds are not known,
    because no report came after it or one is missing around it, is skipped and counted (the speeds of
    another moment are not its: in a manoeuvre the rotors change speed within their time constant,
-   12–30 ms);
+   12–30 ms); one stamped before the time line's first report is skipped as expected, not as a fault of
+   the input (:attr:`StepResult.skipped_as_expected`);
 2. diagnoses every sample (:class:`~multirotor_ros.diagnosis.diagnoser.RotorDiagnoser`) taken in free
    flight: while something may hold the vehicle (the ground under it, a hand, lying on its side;
    :mod:`multirotor_ros.diagnosis.contact` gives the rules and their physics) nothing is identified or
@@ -179,6 +180,16 @@ class StepResult:
     skipped: str | None = None  # why the sample was not used (or not learnt from), as a counting reason
     skipped_detail: str = ""  # the specifics of ``skipped``
 
+    @property
+    def skipped_as_expected(self) -> bool:
+        """Skipped for a reason that is no fault of the input: held on the ground, or before the speeds came.
+
+        A state stamped before the first rotor-speed report of the time line has nothing to be paired
+        with: every identifier that joins a running simulator gets one (odometry at 250 Hz, speeds at
+        100 Hz), which is no news worth a warning.
+        """
+        return self.skipped in ("resting", "before the first motor_speeds")
+
 
 @dataclass(frozen=True)
 class _Sample:
@@ -218,6 +229,7 @@ class FlightMonitor:
         self._innovation_gate = InnovationGate()
         self.record = record
         self._speeds: deque[tuple[int, FloatArray]] = deque(maxlen=64)
+        self._first_speeds_ns: int | None = None  # the stamp of the time line's first rotor-speed report
         self._last_state_ns: int | None = None
         self._last_accepted: _Accepted | None = None
         self._jumped_position: tuple[int, FloatArray] | None = None  # the last position refused as a jump
@@ -305,6 +317,8 @@ class FlightMonitor:
                 f"{self.airframe.rotor_speed_max_rad_s:g} rad/s (not learnt from)",
             )
         self._speeds.append((stamp_ns, omega))
+        if self._first_speeds_ns is None:
+            self._first_speeds_ns = stamp_ns
         return self._drain()
 
     def restart(self) -> None:
@@ -318,6 +332,7 @@ class FlightMonitor:
             self._t_after_restart_s = (self._last_state_ns - self._origin_ns) * 1e-9 + period_s
             self._origin_ns = None
         self._speeds.clear()
+        self._first_speeds_ns = None
         self._waiting.clear()
         self._held.clear()
         self._last_state_ns = None
@@ -483,6 +498,10 @@ class FlightMonitor:
         """The results of this sample and of the samples the innovation gate held before it, if decided."""
         result = StepResult(waiting.t, waiting.stamp_ns)
         omega = self._speeds_for(waiting.stamp_ns)
+        if omega is None and (self._first_speeds_ns is None or waiting.stamp_ns < self._first_speeds_ns):
+            result.skipped = "before the first motor_speeds"
+            result.skipped_detail = f"{self._at('state', waiting.stamp_ns)} came before any rotor speeds"
+            return [result]
         if omega is None:
             result.skipped = "no recent motor_speeds"
             result.skipped_detail = (

@@ -36,9 +36,10 @@ values that are not finite or not physically plausible (multirotor_ros.plausibil
 speeds, rates, accelerations, a position jump since the last accepted one, rotor speeds above the
 airframe's maximum), a stamp that repeats with other content, goes back, or lies more than
 ``future_stamp_tolerance_s`` ahead of the node's clock (refused alone, never kept as the newest). Under
-``use_sim_time`` a message that comes before the node's first ``clock`` is not looked at: there is no
-time yet to judge it by, and a node joining a running simulator gets its odometry and clock in either
-order. A message equal to the last one
+``use_sim_time`` the node's clock is the newest ``clock`` message, and one that has arrived is heard
+before a stamp is judged ahead of it (nodes/clock.py ``NodeTime.catch_up``); a message that comes before
+the node's first ``clock`` is not looked at: there is no time yet to judge it by, and a node joining a
+running simulator gets its odometry and clock in either order. A message equal to the last one
 used on its topic is a resend (a lockstep simulator resends its newest odometry while it waits for a
 command): no data and no error, ignored without a log line and counted (``<topic>_resent`` in the
 ``inputs`` status below). Samples that pass are still gated on their force residual
@@ -489,20 +490,23 @@ class IdentifierNode(Node):
         newest odometry again while it waits for a command) is no new data, no error either; nor is a
         message stamped before a simulation reset (the old vehicle's, still queued: nodes/reset.py).
         """
+        stamp_ns = stamp_to_ns(message.header.stamp)
+        tolerance_ns = round(self._params["future_stamp_tolerance_s"] * 1e9)
+        if not self._time.running or stamp_ns > self._time.now_ns() + tolerance_ns:
+            self._time.catch_up()  # its /clock may be waiting behind this message's queue
         if not self._time.running:
             return False  # no time yet to judge a stamp by (simulated time before the first /clock)
         now_ns = self._time.now_ns()
         back_ns = (self._clock_ns or 0) - now_ns
-        if back_ns > self._params["future_stamp_tolerance_s"] * 1e9:
+        if back_ns > tolerance_ns:
             self._start_new_time_line(back_ns * 1e-9)
         self._clock_ns = now_ns
         if self._used.get(topic) == message:
             self._inputs.resent(topic)
             return False
-        stamp_ns = stamp_to_ns(message.header.stamp)
         # The simulator sends a state before the clock of its time: a stamp up to the tolerance ahead of
         # this node's clock is handled as it is; one further ahead is refused below, and counts as no later.
-        taken_ns = min(stamp_ns, now_ns + round(self._params["future_stamp_tolerance_s"] * 1e9))
+        taken_ns = min(stamp_ns, now_ns + tolerance_ns)
         self._newest_input_ns[topic] = max(taken_ns, self._newest_input_ns.get(topic, taken_ns))
         back = self._inputs.heard(topic, now_ns, time.monotonic_ns())
         if back is not None:
@@ -610,7 +614,7 @@ class IdentifierNode(Node):
             self.get_logger().warning(warning, throttle_duration_sec=5.0)
         for event in result.events:
             self.get_logger().info(event)
-        if result.skipped not in (None, "resting"):
+        if result.skipped is not None and not result.skipped_as_expected:
             self._skipped.refuse(result.skipped, result.skipped_detail)
         if result.accel_residual_W is not None:
             self._last_stamp_ns = result.stamp_ns

@@ -49,11 +49,17 @@ def subscribe(
         callback(message)
         assert subscription is not None  # created before any message can come
         for _ in range(depth):
-            with subscription.handle:
-                taken = subscription.handle.take_message(msg_type, raw)
+            taken = take_waiting(subscription, msg_type, raw)
             if taken is None:
                 return
-            callback(taken[0])
+            callback(taken)
 
     subscription = node.create_subscription(msg_type, topic, take_all, qos, raw=raw)
     return subscription
+
+
+def take_waiting(subscription: Subscription, msg_type: Any, raw: bool = False) -> Any:
+    """The oldest message waiting in ``subscription``'s queue, taken now, or None (the executor not asked)."""
+    with subscription.handle:
+        taken = subscription.handle.take_message(msg_type, raw)
+    return None if taken is None else taken[0]
