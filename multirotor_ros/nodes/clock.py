@@ -8,6 +8,7 @@ from collections.abc import Callable
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMessage
 from std_msgs.msg import Header
 
@@ -97,11 +98,11 @@ class NodeTime:
         self._on_clock = on_clock
         self.simulated = bool(node.get_parameter("use_sim_time").value)
         self.simulated_now_ns: int | None = None  # the newest /clock heard
-        self._subscription = (
-            subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
-            if subscribe
-            else None
-        )
+        # Where a /clock not dispatched yet waits, and who hears it (catch_up): this node or a SharedClock.
+        self._source: tuple[Subscription, Callable[[ClockMessage], None]] | None = None
+        if subscribe:
+            clock = subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
+            self._source = (clock, self.heard)
 
     @property
     def running(self) -> bool:
@@ -128,13 +129,18 @@ class NodeTime:
         beside a lockstep simulator running a few times faster than real time took an odometry 0.504 s
         ahead of its clock for a stamp from the future (CI, 2026-11-28). The simulator publishes each
         state before the clock of its time, so the newest clock waiting is at most one period behind any
-        state waiting. Only with the node's own subscription (``subscribe`` true).
+        state waiting. Without a subscription of its own, the :class:`SharedClock` that tells it takes it.
         """
-        if self._subscription is None or not self.simulated:
+        if self._source is None or not self.simulated:
             return
-        waiting = subscriptions.take_waiting(self._subscription, ClockMessage)
+        subscription, hear = self._source
+        waiting = subscriptions.take_waiting(subscription, ClockMessage)
         if waiting is not None:
-            self.heard(waiting)
+            hear(waiting)
+
+    def told_by(self, subscription: Subscription, hear: Callable[[ClockMessage], None]) -> None:
+        """A ``SharedClock``'s ``subscription`` brings this node's ``/clock``, and ``hear`` tells it."""
+        self._source = (subscription, hear)
 
     def heard(self, message: ClockMessage) -> None:
         """A ``/clock`` message: the node's simulated time now."""
@@ -154,7 +160,9 @@ class SharedClock:
 
     def __init__(self, node: Node, times: list[NodeTime]):
         self.times = times
-        subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
+        subscription = subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
+        for node_time in times:
+            node_time.told_by(subscription, self._heard)
 
     def _heard(self, message: ClockMessage) -> None:
         for node_time in self.times:

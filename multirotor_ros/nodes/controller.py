@@ -75,7 +75,10 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
   frame (a re-localised or restarted estimator) is accepted, and so is the valid odometry that follows a
   plausible but false first one. The stamp goes through a
   ``StampGate`` against this node's clock (simulated or wall time): a stamp more than 0.5 s ahead is
-  refused alone and never kept, so the next valid odometry is accepted. A zero stamp is refused as
+  refused alone and never kept, so the next valid odometry is accepted. On simulated time a ``/clock``
+  that came but waits to be dispatched is heard before that judgement (nodes/clock.py
+  ``NodeTime.catch_up``): a controller that was busy for a moment beside a simulator running faster
+  than real time gets the newest odometry before the clock of its time. A zero stamp is refused as
   unstamped once this node's clock reads more than that tolerance; before (simulated time just
   started) it is a real stamp: the simulator's first odometry is stamped 0.
 - rotor_effectiveness: the layout above with N rotors, finite, estimates in [0, 1.5], std >= 0. A
@@ -271,6 +274,7 @@ class ControllerNode(Node):
         self._yaw_warned = False
         self._last_command: JointState | None = None
         self._reset_fence = ResetFence(self._odometry_check.gate.future_tolerance_s)
+        self._future_tolerance_ns = round(self._odometry_check.gate.future_tolerance_s * NS_PER_S)
 
         self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
         # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
@@ -306,6 +310,8 @@ class ControllerNode(Node):
         if isinstance(odometry, Refusal):
             self._odom_refusals.refuse(odometry.reason, odometry.detail)
             return
+        if odometry.stamp_ns > self.time.now_ns() + self._future_tolerance_ns:
+            self.time.catch_up()  # its /clock may have come and wait to be dispatched after it
         now_ns = self.time.now_ns()
         if self._reset_fence.stale(odometry.stamp_ns, now_ns):
             return
