@@ -1,4 +1,4 @@
-"""On simulated time a node judges a stamp by the newest ``/clock`` that has arrived (NodeTime.catch_up).
+"""On simulated time a node judges a stamp by the newest ``/clock`` that has arrived (NodeTime.now_to_judge).
 
 Real nodes in this process over DDS (the session's isolated domain), fed by a peer that plays a simulator
 running ahead of them: a second more of odometry and the clock of its time are waiting when the node gets

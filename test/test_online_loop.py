@@ -441,7 +441,7 @@ def test_controllers_that_join_a_running_lockstep_simulator_keep_its_time_and_fl
             status.wait_for(lambda m: any(s.name == "inputs" for s in m.status), timeout=STARTUP_TIMEOUT_S)
             log = identifier.wait_for_log("resting at t = ", STARTUP_TIMEOUT_S)
             assert "resting at t = " in log, log
-            # Nothing refused: neither a state ahead of a clock that had come (NodeTime.catch_up) nor the
+            # Nothing refused: neither a state ahead of a clock that had come (NodeTime.now_to_judge) nor the
             # states that came before the first rotor speeds.
             assert "refused" not in log, log
 

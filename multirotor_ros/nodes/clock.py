@@ -98,7 +98,7 @@ class NodeTime:
         self._on_clock = on_clock
         self.simulated = bool(node.get_parameter("use_sim_time").value)
         self.simulated_now_ns: int | None = None  # the newest /clock heard
-        # Where a /clock not dispatched yet waits, and who hears it (catch_up): this node or a SharedClock.
+        # Where a /clock not dispatched yet waits, and who hears it (_catch_up): this node or a SharedClock.
         self._source: tuple[Subscription, Callable[[ClockMessage], None]] | None = None
         if subscribe:
             clock = subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self.heard, CLOCK_QOS)
@@ -120,7 +120,17 @@ class NodeTime:
         self.simulated = simulated
         self.simulated_now_ns = None
 
-    def catch_up(self) -> None:
+    def now_to_judge(self, stamp_ns: int, tolerance_ns: int) -> int:
+        """The node's time [ns] to judge ``stamp_ns`` by, a stamp allowed ``tolerance_ns`` ahead of it.
+
+        Before the first ``/clock``, or for a stamp further ahead, a ``/clock`` message that has arrived but
+        that the executor has not dispatched yet is heard first (:meth:`_catch_up`).
+        """
+        if not self.running or stamp_ns > self.now_ns() + tolerance_ns:
+            self._catch_up()
+        return self.now_ns()
+
+    def _catch_up(self) -> None:
         """Hear a ``/clock`` message that has arrived but that the executor has not dispatched yet.
 
         For a stamp that looks ahead of this node's clock: the executor dispatches one subscription at a

@@ -77,7 +77,7 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
   ``StampGate`` against this node's clock (simulated or wall time): a stamp more than 0.5 s ahead is
   refused alone and never kept, so the next valid odometry is accepted. On simulated time a ``/clock``
   that came but waits to be dispatched is heard before that judgement (nodes/clock.py
-  ``NodeTime.catch_up``): a controller that was busy for a moment beside a simulator running faster
+  ``NodeTime.now_to_judge``): a controller that was busy for a moment beside a simulator running faster
   than real time gets the newest odometry before the clock of its time. A zero stamp is refused as
   unstamped once this node's clock reads more than that tolerance; before (simulated time just
   started) it is a real stamp: the simulator's first odometry is stamped 0.
@@ -310,9 +310,7 @@ class ControllerNode(Node):
         if isinstance(odometry, Refusal):
             self._odom_refusals.refuse(odometry.reason, odometry.detail)
             return
-        if odometry.stamp_ns > self.time.now_ns() + self._future_tolerance_ns:
-            self.time.catch_up()  # its /clock may have come and wait to be dispatched after it
-        now_ns = self.time.now_ns()
+        now_ns = self.time.now_to_judge(odometry.stamp_ns, self._future_tolerance_ns)
         if self._reset_fence.stale(odometry.stamp_ns, now_ns):
             return
         state = self._odometry_check.accept(odometry, now_ns)

@@ -37,7 +37,7 @@ speeds, rates, accelerations, a position jump since the last accepted one, rotor
 airframe's maximum), a stamp that repeats with other content, goes back, or lies more than
 ``future_stamp_tolerance_s`` ahead of the node's clock (refused alone, never kept as the newest). Under
 ``use_sim_time`` the node's clock is the newest ``clock`` message, and one that has arrived is heard
-before a stamp is judged ahead of it (nodes/clock.py ``NodeTime.catch_up``); a message that comes before
+before a stamp is judged ahead of it (nodes/clock.py ``NodeTime.now_to_judge``); a message that comes before
 the node's first ``clock`` is not looked at: there is no time yet to judge it by, and a node joining a
 running simulator gets its odometry and clock in either order. A message equal to the last one
 used on its topic is a resend (a lockstep simulator resends its newest odometry while it waits for a
@@ -492,11 +492,9 @@ class IdentifierNode(Node):
         """
         stamp_ns = stamp_to_ns(message.header.stamp)
         tolerance_ns = round(self._params["future_stamp_tolerance_s"] * 1e9)
-        if not self._time.running or stamp_ns > self._time.now_ns() + tolerance_ns:
-            self._time.catch_up()  # its /clock may be waiting behind this message's queue
+        now_ns = self._time.now_to_judge(stamp_ns, tolerance_ns)
         if not self._time.running:
             return False  # no time yet to judge a stamp by (simulated time before the first /clock)
-        now_ns = self._time.now_ns()
         back_ns = (self._clock_ns or 0) - now_ns
         if back_ns > tolerance_ns:
             self._start_new_time_line(back_ns * 1e-9)
