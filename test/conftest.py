@@ -26,7 +26,7 @@ _AMENT_PATH = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.paths
 if _PREFIX_MARKER.is_file() and sys.prefix not in _AMENT_PATH:
     os.environ["AMENT_PREFIX_PATH"] = os.pathsep.join([sys.prefix, *_AMENT_PATH])
 
-from ros_harness import ros_probe, start_node  # noqa: E402, F401  (fixtures, registered by import)
+from ros_harness import rclpy_context, ros_probe, start_node  # noqa: E402, F401  (fixtures, registered by import)
 
 
 def pytest_report_header() -> list[str]:

@@ -441,6 +441,17 @@ class RosProbe:
 
 
 @pytest.fixture
+def rclpy_context() -> Iterator[Any]:
+    """An rclpy context of its own for nodes built in the test's process (shut down at teardown)."""
+    import rclpy
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    yield context
+    context.try_shutdown()
+
+
+@pytest.fixture
 def ros_probe() -> Iterator[RosProbe]:
     """An in-process ROS node to subscribe, publish and call parameter services with."""
     probe = RosProbe()

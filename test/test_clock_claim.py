@@ -8,10 +8,8 @@ both passed on a slow discovery do: the claims alone must settle it, the same wa
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 
 import pytest
-import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -23,11 +21,8 @@ OWN_CLAIM_TOPIC = "/clock_claim_of_test_clock_claim"
 
 
 @pytest.fixture
-def context() -> Iterator[Context]:
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    context.try_shutdown()
+def context(rclpy_context: Context) -> Context:
+    return rclpy_context
 
 
 def claimant(context: Context, name: str) -> tuple[Node, ClockClaim, list[tuple[str, float]]]:

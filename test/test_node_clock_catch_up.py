@@ -12,12 +12,11 @@ clock" that its clock had already reached. A stamp ahead of every clock that cam
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
-import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -77,11 +76,8 @@ def fleet_controller(context: Context) -> Judged:
 
 
 @pytest.fixture
-def context() -> Iterator[Context]:
-    context = Context()
-    rclpy.init(context=context)
-    yield context
-    context.try_shutdown()
+def context(rclpy_context: Context) -> Context:
+    return rclpy_context
 
 
 def spin_until(executor: SingleThreadedExecutor, done: Callable[[], bool], timeout_s: float = 20.0) -> None:
