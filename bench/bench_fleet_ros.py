@@ -1,7 +1,7 @@
 """How many vehicles one simulator node keeps in real time, each flown by its own controller process.
 
     .venv/bin/python bench/bench_fleet_ros.py [--vehicles 1,5,10,15] [--seconds 30]
-        [--controllers composed,separate] [--rate-hz 250]
+        [--controllers composed,separate] [--rate-hz 250] [--no-ceiling]
 
 For each fleet size V: ``multirotor node simulator`` with ``vehicles`` = uav1..uavV (x8_octorotor, 1 kHz
 physics, real_time_factor 1, publishing /clock and odometry at the control rate, other sensors at their
@@ -13,6 +13,16 @@ and the share of control periods whose command came in time (stamped at the peri
 before its end); after it, the probe looks at 100 odometry messages of each vehicle (not during it: its
 own Python would take CPU from the nodes measured). A fleet "keeps real time" when the achieved factor is
 >= 0.99, >= 99 % of the periods are on time and every vehicle is then within 5 cm of its height.
+
+Beside each fleet size, in the same run and before it, the ceiling rclpy sets on this host at that moment
+(``--ceiling``, on by default): the same messages with no physics and no control. A bare plant process
+publishes V serialised odometries and a ``/clock`` every period from a wall-clock timer, as the simulator's
+real-time timer does, and a bare controllers process answers each odometry at once with a serialised
+8-rotor JointState carrying its stamp, on each vehicle's ``motor_speed_cmd``; the same QoS and queue
+depths as the nodes, both on the EventsExecutor. The plant judges the answers with the simulator's own
+``ControlTiming`` (simulation/pacing.py). What the fleet loses against it is the nodes' own work; what the
+ceiling loses is the host's and the middleware's.
+
 Every process runs in a ROS domain of its own choosing (random, localhost only). The load average is
 printed with the figures: they are wall-clock numbers.
 """
@@ -20,18 +30,26 @@ printed with the figures: they are wall-clock numbers.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
+import struct
+import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 200)))
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 SETTLE_S = 10.0
+BARE_SETTLE_S = 3.0  # [s] of the bare exchange before its measured window (discovery, first answers)
+BARE_ROTORS = 8
+STAMP = struct.Struct("<iI")  # header.stamp (sec, nanosec) in little-endian CDR, as rclpy serialises here
 
 
 def pacing_values(message) -> dict[str, float]:  # noqa: ANN001 - diagnostic_msgs/DiagnosticArray
@@ -106,6 +124,116 @@ def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: floa
         probe.close()
 
 
+def bare_plant(vehicles: int, rate_hz: float, seconds: float) -> None:
+    """Child role: odometries and a /clock every period, no physics; prints the answers on time and late."""
+    from bench_closed_loop import child_node, raw_stamp_ns
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from multirotor_ros.nodes.clock import CLOCK_QOS
+    from multirotor_ros.nodes.messages import stamp_from_ns
+    from multirotor_ros.simulation.pacing import ControlTiming
+
+    _, node, spin = child_node("bare_plant", "events")
+    period_ns = round(1e9 / rate_hz)
+    timing = [ControlTiming(period_ns) for _ in range(vehicles)]
+    odometry = [node.create_publisher(Odometry, f"/bare{k}/odom", 10) for k in range(vehicles)]
+    clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    for k in range(vehicles):
+        node.create_subscription(
+            JointState,
+            f"/bare{k}/motor_speed_cmd",
+            lambda data, judge=timing[k]: judge.command(raw_stamp_ns(data)),
+            10,
+            raw=True,
+        )
+    message = bytearray(serialize_message(Odometry(child_frame_id="base_link")))
+    assert message[1] == 1, "expected little-endian CDR"
+    started_ns = time.monotonic_ns()
+    next_period = [0]
+
+    def tick() -> None:
+        # Every period the wall clock has passed, as the simulator runs its physics up to it.
+        due = (time.monotonic_ns() - started_ns) // period_ns
+        for period in range(next_period[0], due + 1):
+            t_ns = period * period_ns
+            for judge in timing:
+                judge.physics_at(t_ns)
+            STAMP.pack_into(message, 4, t_ns // 1_000_000_000, t_ns % 1_000_000_000)
+            data = bytes(message)
+            for publisher in odometry:
+                publisher.publish(data)
+            clock.publish(Clock(clock=stamp_from_ns(t_ns)))
+        next_period[0] = due + 1
+
+    node.create_timer(period_ns / 1e9, tick)
+    window_start = time.monotonic() + BARE_SETTLE_S
+    spin(lambda: time.monotonic() < window_start)
+    on_time_before, late_before = sum(j.on_time for j in timing), sum(j.late for j in timing)
+    window_end = time.monotonic() + seconds
+    spin(lambda: time.monotonic() < window_end)
+    on_time, late = sum(j.on_time for j in timing), sum(j.late for j in timing)
+    print(f"ON_TIME {on_time - on_time_before}\nLATE {late - late_before}", flush=True)
+
+
+def bare_controllers(vehicles: int) -> None:
+    """Child role: answer each odometry at once with an 8-rotor JointState carrying its stamp."""
+    from bench_closed_loop import child_node
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+
+    from multirotor_ros.nodes.clock import CLOCK_QOS
+
+    rclpy, node, spin = child_node("bare_controllers", "events")
+    reply = bytearray(
+        serialize_message(
+            JointState(name=[f"rotor_{k}" for k in range(1, BARE_ROTORS + 1)], velocity=[300.0] * BARE_ROTORS)
+        )
+    )
+    commands = [node.create_publisher(JointState, f"/bare{k}/motor_speed_cmd", 10) for k in range(vehicles)]
+
+    def answer(publisher: Any, data: bytes) -> None:
+        reply[4:12] = data[4:12]  # header.stamp, right after the CDR encapsulation in both messages
+        publisher.publish(bytes(reply))
+
+    for k, publisher in enumerate(commands):
+        node.create_subscription(Odometry, f"/bare{k}/odom", partial(answer, publisher), 1, raw=True)
+    node.create_subscription(Clock, "/clock", lambda _: None, CLOCK_QOS, raw=True)  # taken, as the nodes do
+    try:
+        spin(rclpy.ok)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+
+
+def bare_exchange(vehicles: int, rate_hz: float, seconds: float, logs: Path) -> float:
+    """The share of control periods the bare plant and controllers keep on time (module docstring)."""
+    from bench_closed_loop import start, stop
+
+    me = [sys.executable, str(Path(__file__).resolve())]
+    controllers = start(
+        [*me, "--role", "bare-controllers", "--vehicles", str(vehicles)], logs / f"v{vehicles}-bare.log"
+    )
+    try:
+        done = subprocess.run(
+            [*me, "--role", "bare-plant", "--vehicles", str(vehicles), "--rate-hz", str(rate_hz),
+             "--seconds", str(seconds)],
+            capture_output=True, text=True, timeout=seconds + 120,
+        )  # fmt: skip
+    finally:
+        stop([controllers])
+    reported = dict(line.split(maxsplit=1) for line in done.stdout.splitlines() if " " in line)
+    if "ON_TIME" not in reported:
+        print(f"  the bare plant reported nothing; its output:\n{done.stdout}{done.stderr}")
+        return math.nan
+    on_time, late = int(reported["ON_TIME"]), int(reported["LATE"])
+    return on_time / max(on_time + late, 1)
+
+
 def next_status(pacing) -> tuple[dict[str, float], float]:  # noqa: ANN001 - a Recorder
     """The next pacing status to arrive, and the wall time it arrived at."""
     pacing.clear()
@@ -121,7 +249,20 @@ def main(argv: list[str] | None = None) -> int:
         "--controllers", default="composed,separate", help="composed (one process), separate (one each)"
     )
     parser.add_argument("--rate-hz", type=float, default=250.0, help="control (and odometry) rate [Hz]")
+    parser.add_argument(
+        "--ceiling",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="measure the bare exchange beside each fleet size",
+    )
+    parser.add_argument("--role", choices=("bare-plant", "bare-controllers"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.role == "bare-plant":
+        bare_plant(int(args.vehicles), args.rate_hz, args.seconds)
+        return 0
+    if args.role == "bare-controllers":
+        bare_controllers(int(args.vehicles))
+        return 0
     logs = Path(tempfile.mkdtemp(prefix="bench_fleet_ros_"))
     print(f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, {os.cpu_count()} CPUs, logs in {logs}")
     print(f"control rate {args.rate_hz:g} Hz")
@@ -132,17 +273,27 @@ def main(argv: list[str] | None = None) -> int:
     ways = args.controllers.split(",")
     if not set(ways) <= {"composed", "separate"}:
         parser.error(f"--controllers: composed and/or separate, got {args.controllers!r}")
-    for vehicles, way in ((int(v), way) for v in args.vehicles.split(",") for way in ways):
-        result = fly(vehicles, args.seconds, logs, way == "composed", args.rate_hz)
-        keeps = (
-            result["achieved"] >= 0.99 and result["on_time"] >= 0.99 and result["height_error_after_m"] < 0.05
-        )
-        print(
-            f"{vehicles:8d} {way:>11} {result['achieved']:12.3f} {100 * result['on_time']:7.1f}% "
-            f"{result['height_error_after_m']:13.3f}m {'yes' if keeps else 'no':>16} "
-            f"{os.getloadavg()[0]:5.1f}",
-            flush=True,
-        )
+    for vehicles in (int(v) for v in args.vehicles.split(",")):
+        if args.ceiling:
+            share = bare_exchange(vehicles, args.rate_hz, args.seconds, logs)
+            print(
+                f"{vehicles:8d} {'bare':>11} {'':>12} {100 * share:7.1f}% {'':>14} "
+                f"{'yes' if share >= 0.99 else 'no':>16} {os.getloadavg()[0]:5.1f}",
+                flush=True,
+            )
+        for way in ways:
+            result = fly(vehicles, args.seconds, logs, way == "composed", args.rate_hz)
+            keeps = (
+                result["achieved"] >= 0.99
+                and result["on_time"] >= 0.99
+                and result["height_error_after_m"] < 0.05
+            )
+            print(
+                f"{vehicles:8d} {way:>11} {result['achieved']:12.3f} {100 * result['on_time']:7.1f}% "
+                f"{result['height_error_after_m']:13.3f}m {'yes' if keeps else 'no':>16} "
+                f"{os.getloadavg()[0]:5.1f}",
+                flush=True,
+            )
     return 0
 
 
