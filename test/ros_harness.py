@@ -451,6 +451,19 @@ def rclpy_context() -> Iterator[Any]:
     context.try_shutdown()
 
 
+def spin_until(context: Any, nodes: Sequence[Any], done: Callable[[], bool], timeout_s: float = 20.0) -> None:
+    """Spin ``nodes`` of ``context`` (made in this process) until ``done()``, at most ``timeout_s`` [s]."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=context)
+    for node in nodes:
+        executor.add_node(node)
+    deadline = time.monotonic() + timeout_s
+    while not done() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    executor.shutdown()
+
+
 @pytest.fixture
 def ros_probe() -> Iterator[RosProbe]:
     """An in-process ROS node to subscribe, publish and call parameter services with."""

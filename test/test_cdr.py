@@ -20,7 +20,11 @@ from multirotor_ros.nodes.cdr import (
     odometry_fields,
     odometry_fields_from_cdr,
 )
-from multirotor_ros.nodes.messages import odometry_message, odometry_values_of_state
+from multirotor_ros.nodes.messages import (
+    joint_state_from_rotor_speeds,
+    odometry_message,
+    odometry_values_of_state,
+)
 from multirotor_ros.refusals import Refusal
 
 FRAMES = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\x00"), max_size=12)
@@ -121,6 +125,22 @@ def test_the_writer_gives_the_bytes_rclpy_serialises_for_the_same_message(
     written = deserialize_message(writer.write(stamp, odometry_values_of_state(x)), Odometry)
     expected = odometry_message(x, stamp, frame_id, child_frame_id, out=template)
     assert written == expected and odometry_fields(written) == odometry_fields(expected)
+
+
+@given(
+    speeds=st.lists(st.floats(allow_nan=False), min_size=1, max_size=12),
+    sec=st.integers(0, 2**31 - 1),
+    nanosec=st.integers(0, 999_999_999),
+)
+@settings(max_examples=200)
+def test_the_command_writer_gives_what_rclpy_serialises_for_the_controllers_joint_state(
+    speeds: list[float], sec: int, nanosec: int
+) -> None:
+    writer = cdr.RotorCommandWriter(len(speeds))
+    data = writer.write(sec * 1_000_000_000 + nanosec, speeds)
+    expected = joint_state_from_rotor_speeds(speeds, Time(sec=sec, nanosec=nanosec))
+    assert deserialize_message(data, JointState) == expected
+    assert cdr._plain_little_endian_joint_state(data) == joint_state_fields(expected)  # the simulator's path
 
 
 DOUBLES = st.lists(st.floats(allow_nan=False), max_size=10)

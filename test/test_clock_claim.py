@@ -11,8 +11,8 @@ import time
 
 import pytest
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from ros_harness import spin_until
 
 from multirotor_ros.nodes.clock import CLOCK_CLAIM_TOPIC, ClockClaim
 
@@ -30,16 +30,6 @@ def claimant(context: Context, name: str) -> tuple[Node, ClockClaim, list[tuple[
     node = Node(name, context=context, cli_args=remap)
     yields: list[tuple[str, float]] = []
     return node, ClockClaim(node, lambda other, earlier_by_s: yields.append((other, earlier_by_s))), yields
-
-
-def spin_until(context: Context, nodes: list[Node], done, timeout_s: float = 20.0) -> None:
-    executor = SingleThreadedExecutor(context=context)
-    for node in nodes:
-        executor.add_node(node)
-    deadline = time.monotonic() + timeout_s
-    while not done() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.05)
-    executor.shutdown()
 
 
 def test_the_second_claim_yields_to_the_first_and_the_first_keeps_the_clock(context: Context) -> None:

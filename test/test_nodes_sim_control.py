@@ -69,6 +69,7 @@ def test_parameter_checks_give_reasons() -> None:
 # ------------------------------------------------------------------ the closed loop over ROS 2
 
 STARTUP_TIMEOUT_S = 120.0
+ODOM_QUEUE_DEPTH = 1000  # [messages] 4 s of odometry at 250 Hz (start_vehicle)
 
 
 def stamp_s(message) -> float:
@@ -144,7 +145,9 @@ def start_vehicle(
 
     With ``sim_time`` the simulator publishes the graph's clock (``/clock``) and the controller follows it.
     """
-    odom = probe.subscribe(f"{namespace}/odom", Odometry)
+    # Deep: the middleware's thread queues a lockstep burst while this process's Python is held up (a
+    # probe with the default depth of 10 once lost two seconds of simulated time, test_hover in CI).
+    odom = probe.subscribe(f"{namespace}/odom", Odometry, qos=ODOM_QUEUE_DEPTH)
     name = namespace.strip("/")
     sim = NodeProcess(
         "simulator",

@@ -20,20 +20,22 @@ stamp, pose and twist of each state into a copy at the offsets this reader finds
 :func:`joint_state_fields_from_cdr` reads a JointState's stamp, names and velocities the same way (the
 simulator takes a command per vehicle and control period; rclpy's reading costs 13 us for eight rotors):
 after the header, the names (a uint32 count, then each string aligned to 4), then position, velocity and
-effort, each a uint32 count aligned to 4 and its doubles aligned to 8.
+effort, each a uint32 count aligned to 4 and its doubles aligned to 8. :class:`RotorCommandWriter`
+writes the controller's command so: rclpy's ``publish`` of the JointState object cost 3 times the
+publish of its bytes (35.6 against 13.1 us for eight rotors, a subscriber in another process).
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
-from multirotor_ros.nodes.messages import odometry_values, stamp_to_ns
+from multirotor_ros.nodes.messages import odometry_values, rotor_names, stamp_to_ns
 from multirotor_ros.refusals import Refusal
 
 _LITTLE_ENDIAN_CDR = b"\x00\x01"
@@ -126,6 +128,30 @@ class OdometryWriter:
         return bytes(self._data)
 
 
+class RotorCommandWriter:
+    """Serialised JointState rotor commands (rotor_1..rotor_N, the speeds as ``velocity``), newly stamped.
+
+    What nodes/messages.py ``joint_state_from_rotor_speeds`` makes, serialised once; each command is a copy
+    with the stamp and the velocities written at the offsets the reader finds.
+    """
+
+    def __init__(self, n_rotors: int):
+        self._data = bytearray(
+            serialize_message(JointState(name=rotor_names(n_rotors), velocity=[0.0] * n_rotors))
+        )
+        self._speeds = struct.Struct(f"<{n_rotors}d")
+        layout = _joint_state_layout(bytes(self._data))
+        if layout is None:
+            raise ValueError("rclpy did not serialise the JointState as plain little-endian CDR")
+        self._speeds_offset = layout[2][1][1]  # velocity's first double
+
+    def write(self, stamp_ns: int, speeds_rad_s: Sequence[float]) -> bytes:
+        """The command stamped ``stamp_ns`` with the rotors' speeds [rad/s], in rotor order."""
+        _STAMP.pack_into(self._data, _ENCAPSULATION_BYTES, *divmod(stamp_ns, 1_000_000_000))
+        self._speeds.pack_into(self._data, self._speeds_offset, *speeds_rad_s)
+        return bytes(self._data)
+
+
 def _plain_little_endian(data: bytes) -> OdometryFields | None:
     frames = _frames(data)
     if frames is None or len(data) < frames[3] + _AFTER_FRAMES_BYTES:
@@ -137,19 +163,23 @@ def _plain_little_endian(data: bytes) -> OdometryFields | None:
 
 
 def _plain_little_endian_joint_state(data: bytes) -> JointStateFields | None:
+    layout = _joint_state_layout(data)
+    if layout is None:
+        return None
+    stamp_ns, names, (_, (count, offset), _) = layout
+    return JointStateFields(stamp_ns, names, struct.unpack_from(f"<{count}d", data, offset))
+
+
+def _joint_state_layout(data: bytes) -> tuple[int, tuple[str, ...], list[tuple[int, int]]] | None:
+    """A JointState's stamp [ns], names, and the length and offset of position, velocity and effort."""
     header = _header(data)
     if header is None:
         return None
     stamp_ns, _, offset = header
-    count, offset = _count(data, offset)
-    if count is None:
+    read = _NAMES.read(data, offset)
+    if read is None:
         return None
-    names = []
-    for _ in range(count):
-        name, offset = _string(data, offset + _padding(offset, 4))
-        if name is None:
-            return None
-        names.append(name)
+    names, offset = read
     sequences = []
     for _ in range(3):  # position, velocity, effort
         count, offset = _count(data, offset)
@@ -160,9 +190,40 @@ def _plain_little_endian_joint_state(data: bytes) -> JointStateFields | None:
         end = offset + 8 * count
         if end > len(data):
             return None
-        sequences.append(struct.unpack_from(f"<{count}d", data, offset))
+        sequences.append((count, offset))
         offset = end
-    return JointStateFields(stamp_ns, tuple(names), sequences[1])
+    return stamp_ns, names, sequences
+
+
+class _LastNames:
+    """A JointState's names, read again only when their bytes differ from the last ones read.
+
+    A rotor command names the same rotors every time, and reading eight strings was half of the reading
+    of a command. The names read depend only on their bytes and where they start (the alignment).
+    """
+
+    def __init__(self) -> None:
+        self._last: tuple[int, bytes, tuple[str, ...]] | None = None  # (start, their bytes, names)
+
+    def read(self, data: bytes, start: int) -> tuple[tuple[str, ...], int] | None:
+        """The names (a count, then the strings) at ``start``, and the offset after them; None: unreadable."""
+        last = self._last
+        if last is not None and last[0] == start and data.startswith(last[1], start):
+            return last[2], start + len(last[1])
+        count, offset = _count(data, start)
+        if count is None:
+            return None
+        names = []
+        for _ in range(count):
+            name, offset = _string(data, offset + _padding(offset, 4))
+            if name is None:
+                return None
+            names.append(name)
+        self._last = (start, data[start:offset], tuple(names))
+        return self._last[2], offset
+
+
+_NAMES = _LastNames()
 
 
 def _count(data: bytes, offset: int) -> tuple[int | None, int]:

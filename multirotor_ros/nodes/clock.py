@@ -5,10 +5,11 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock, ClockType, ROSClock
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
+from rclpy.time import Time
 from rosgraph_msgs.msg import Clock as ClockMessage
 from std_msgs.msg import Header
 
@@ -91,11 +92,14 @@ class NodeTime:
     and has no timer on ROS time. ``on_clock`` is called with each simulated time heard while the
     node is on simulated time. With ``subscribe`` false the node makes no subscription: a
     :class:`SharedClock` of its process gives it every ``/clock`` message.
+
+    rclpy's time source is let go (:func:`ros_clock_without_time_source`); the time heard here is set on the
+    node's ROS clock instead, so that ``get_clock()`` reads the same simulated time.
     """
 
     def __init__(self, node: Node, on_clock: Callable[[int], None] | None = None, *, subscribe: bool = True):
-        self._node = node
         self._on_clock = on_clock
+        self._ros_clock = ros_clock_without_time_source(node)
         self.simulated = bool(node.get_parameter("use_sim_time").value)
         self.simulated_now_ns: int | None = None  # the newest /clock heard
         # Where a /clock not dispatched yet waits, and who hears it (_catch_up): this node or a SharedClock.
@@ -113,7 +117,7 @@ class NodeTime:
         """The node's time [ns]: the newest simulated time heard (0 before any), or the wall clock."""
         if self.simulated:
             return self.simulated_now_ns or 0
-        return self._node.get_clock().now().nanoseconds
+        return self._ros_clock.now().nanoseconds
 
     def set_simulated(self, simulated: bool) -> None:
         """``use_sim_time`` changed: on simulated time, no time until the next /clock."""
@@ -154,9 +158,15 @@ class NodeTime:
 
     def heard(self, message: ClockMessage) -> None:
         """A ``/clock`` message: the node's simulated time now."""
-        self.simulated_now_ns = stamp_to_ns(message.clock)
+        now_ns = stamp_to_ns(message.clock)
+        self.hear(now_ns, Time(nanoseconds=now_ns, clock_type=ClockType.ROS_TIME))
+
+    def hear(self, now_ns: int, now: Time) -> None:
+        """The simulated time heard on ``/clock``, in [ns] and as ``now`` (the same, for the ROS clock)."""
+        self.simulated_now_ns = now_ns
+        self._ros_clock.set_ros_time_override(now)
         if self.simulated and self._on_clock is not None:
-            self._on_clock(self.simulated_now_ns)
+            self._on_clock(now_ns)
 
 
 class SharedClock:
@@ -170,10 +180,31 @@ class SharedClock:
 
     def __init__(self, node: Node, times: list[NodeTime]):
         self.times = times
+        self._ros_clock = ros_clock_without_time_source(node)
         subscription = subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
         for node_time in times:
             node_time.told_by(subscription, self._heard)
 
     def _heard(self, message: ClockMessage) -> None:
+        now_ns = stamp_to_ns(message.clock)
+        now = Time(nanoseconds=now_ns, clock_type=ClockType.ROS_TIME)
+        self._ros_clock.set_ros_time_override(now)
         for node_time in self.times:
-            node_time.heard(message)
+            node_time.hear(now_ns, now)
+
+
+def ros_clock_without_time_source(node: Node) -> ROSClock:
+    """``node``'s ROS clock, whose time the caller sets from now on: rclpy's time source is detached.
+
+    A node that keeps its own simulated time (:class:`NodeTime`, :class:`SharedClock`) does not read it,
+    yet under ``use_sim_time`` it took every ``/clock`` message too: from the middleware, converted to
+    Python and set on the node's clock. A process of ten controllers had eleven such subscriptions, and a
+    simulator delivers each of its clocks to every one. The time source stays the node's parameter
+    callback: ``use_sim_time`` still switches the node's ROS clock between the wall and the override set
+    by whoever hears ``/clock`` (rclpy has no public access to a node's time source).
+    """
+    node._time_source.detach_node()  # noqa: SLF001 - see above
+    clock = node.get_clock()
+    if not isinstance(clock, ROSClock):
+        raise TypeError(f"{node.get_name()}: its clock is a {type(clock).__name__}, not rclpy's ROSClock")
+    return clock

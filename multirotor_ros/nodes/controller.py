@@ -98,6 +98,7 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -114,14 +115,12 @@ from multirotor_ros.control.law import SaturationController
 from multirotor_ros.control.setpoint_queue import SETPOINT_QUEUE_LENGTH, SetpointQueue
 from multirotor_ros.model.airframe import load_airframe
 from multirotor_ros.model.rotation import FloatArray, quat_to_euler
-from multirotor_ros.nodes.cdr import OdometryFields, odometry_fields_from_cdr
+from multirotor_ros.nodes.cdr import OdometryFields, RotorCommandWriter, odometry_fields_from_cdr
 from multirotor_ros.nodes.clock import NodeTime, steady_clock
 from multirotor_ros.nodes.effectiveness_message import effectiveness_from_message
 from multirotor_ros.nodes.entry import run_node
 from multirotor_ros.nodes.messages import (
-    joint_state_from_rotor_speeds,
     setpoint_from_pose,
-    stamp_from_ns,
     stamp_to_ns,
     state_from_odometry_values,
 )
@@ -272,7 +271,8 @@ class ControllerNode(Node):
         self._diagnosis_given: tuple[Any, Any] | None = None  # the last one given to the filter
         self._reallocated: list[int] = []  # rotors (0-based) whose effectiveness in use is reduced
         self._yaw_warned = False
-        self._last_command: JointState | None = None
+        self._command_writer = RotorCommandWriter(self.airframe.n_rotors)
+        self._last_command: tuple[int, bytes] | None = None  # (stamp [ns], the command published)
         self._reset_fence = ResetFence(self._odometry_check.gate.future_tolerance_s)
         self._future_tolerance_ns = round(self._odometry_check.gate.future_tolerance_s * NS_PER_S)
 
@@ -330,12 +330,8 @@ class ControllerNode(Node):
             elif self._state_of_next_tick(stamp_ns):
                 self._clock_ticks.clock(stamp_ns)
                 self._tick(stamp_ns)
-            elif (
-                resent
-                and self._last_command is not None
-                and stamp_to_ns(self._last_command.header.stamp) == stamp_ns
-            ):
-                self._command_pub.publish(self._last_command)
+            elif resent and self._last_command is not None and self._last_command[0] == stamp_ns:
+                self._command_pub.publish(self._last_command[1])
 
     def _state_of_next_tick(self, stamp_ns: int) -> bool:
         """Whether a state is stamped at the next tick, with the clock heard at most one period before it.
@@ -462,8 +458,8 @@ class ControllerNode(Node):
                 f"yaw authority given up: {100 * output.allocation.yaw_fraction:.0f} % of the wanted yaw "
                 "torque kept; the heading may drift"
             )
-        speeds = output.omega_cmd_rad_s
-        if not (np.all(np.isfinite(speeds)) and np.all(speeds >= 0.0)):
+        speeds = output.omega_cmd_rad_s.tolist()
+        if not all(0.0 <= speed < math.inf for speed in speeds):  # NaN fails every comparison
             self._output_refusals.refuse(
                 "non-finite or negative rotor speed",
                 f"{format_vector(speeds)} rad/s from position {format_vector(p)} m, velocity "
@@ -471,11 +467,9 @@ class ControllerNode(Node):
             )
             self.law.reset()
             return
-        # Filled in place: it is also what a lost command is sent again from (_on_odom).
-        self._last_command = joint_state_from_rotor_speeds(
-            speeds, stamp_from_ns(now_ns), out=self._last_command
-        )
-        self._command_pub.publish(self._last_command)
+        # Serialised here (nodes/cdr.py); kept: a lost command is sent again from it (_on_odom).
+        self._last_command = (now_ns, self._command_writer.write(now_ns, speeds))
+        self._command_pub.publish(self._last_command[1])
 
     def _reset(self, cause: str, reset_stamp_ns: int | None) -> str:
         """Start over (module docstring); one line saying what was dropped."""
