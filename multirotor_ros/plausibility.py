@@ -13,7 +13,7 @@ with the reason beside it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -86,23 +86,26 @@ class StampGate:
     future_tolerance_s: float = 0.5
     reordering_tolerance_s: float = 0.0
     newest_ns: int | None = None
+    # The tolerances in ns, converted once: the gate judges every message of a 250 Hz topic.
+    _future_ns: int = field(init=False, repr=False)
+    _reordering_ns: int = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._future_ns = round(self.future_tolerance_s * NS_PER_S)
+        self._reordering_ns = round(self.reordering_tolerance_s * NS_PER_S)
 
     def check(self, stamp_ns: int, now_ns: int, what: str = "message") -> Refusal | None:
         """None and remember ``stamp_ns`` if it is acceptable at ``now_ns``; else why not (nothing kept)."""
-        if self.newest_ns is not None and now_ns < self.newest_ns - self._tolerance_ns(
-            self.future_tolerance_s
-        ):
+        if self.newest_ns is not None and now_ns < self.newest_ns - self._future_ns:
             self.newest_ns = None  # the clock went back: a restart, not a late message
-        if stamp_ns > now_ns + self._tolerance_ns(self.future_tolerance_s):
+        if stamp_ns > now_ns + self._future_ns:
             ahead = (stamp_ns - now_ns) / NS_PER_S
             return Refusal(
                 "stamp in the future",
                 f"{what} stamped {ahead:.3f} s ahead of this node's clock "
                 f"(tolerance {self.future_tolerance_s:g} s)",
             )
-        if self.newest_ns is not None and stamp_ns < self.newest_ns - self._tolerance_ns(
-            self.reordering_tolerance_s
-        ):
+        if self.newest_ns is not None and stamp_ns < self.newest_ns - self._reordering_ns:
             behind = (self.newest_ns - stamp_ns) / NS_PER_S
             return Refusal(
                 "stamp out of order", f"{what} stamped {behind:.3f} s before the newest accepted one"
@@ -113,10 +116,6 @@ class StampGate:
     def reset(self) -> None:
         """Forget the newest stamp (after a reset of the data source)."""
         self.newest_ns = None
-
-    @staticmethod
-    def _tolerance_ns(seconds: float) -> int:
-        return int(round(seconds * NS_PER_S))
 
 
 def jump_refusal(

@@ -22,7 +22,7 @@ from multirotor_ros.control.gains import (
     airframe_gains,
     gains_from_section,
 )
-from multirotor_ros.control.law import SaturationController, saturate, wrap_angle
+from multirotor_ros.control.law import SaturationController, saturate
 from multirotor_ros.model.airframe import GRAVITY_M_S2, AirframeError, airframe_from_dict, load_airframe
 from multirotor_ros.model.rotation import euler_to_quat
 from multirotor_ros.plausibility import StateLimits
@@ -53,12 +53,30 @@ def test_saturation_is_monotone(a: float, c: float, b: float) -> None:
     assert saturate(low, b) <= saturate(high, b)
 
 
-@given(angle=st.floats(-100.0, 100.0))
-def test_wrap_angle_stays_in_range_and_keeps_the_direction(angle: float) -> None:
-    wrapped = wrap_angle(angle)
-    assert -math.pi <= wrapped < math.pi
-    assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-9)
-    assert math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-9)
+@pytest.fixture(scope="module")
+def x8_law() -> SaturationController:
+    x8 = load_airframe("x8_octorotor")
+    return SaturationController(x8, airframe_gains(x8))
+
+
+@settings(deadline=None)
+@given(yaw=st.floats(-math.pi, math.pi), error=st.floats(-3.1, 3.1), turns=st.integers(-5, 5))
+def test_the_yaw_error_is_taken_the_short_way_round(
+    x8_law: SaturationController, yaw: float, error: float, turns: int
+) -> None:
+    # Whole turns in the wanted yaw change nothing; the torque turns the vehicle towards the nearer side.
+    def yaw_torque(wanted: float) -> float:
+        x8_law.reset()
+        q = euler_to_quat([0.0, 0.0, yaw])
+        output = x8_law.update(
+            0.0, (0.0, 0.0, 1.0), (0.0, 0.0, 0.0), q, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), wanted
+        )
+        return float(output.torque_B[2])
+
+    torque = yaw_torque(yaw + error)
+    assert yaw_torque(yaw + error + 2.0 * math.pi * turns) == pytest.approx(torque, rel=1e-6, abs=1e-9)
+    assume(abs(error) > 1e-6)
+    assert math.copysign(1.0, torque) == math.copysign(1.0, error)
 
 
 # ------------------------------------------------------------------ signs of eq. 9 in ENU / FLU

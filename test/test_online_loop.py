@@ -86,6 +86,25 @@ def test_lockstep_waits_for_a_follower_once_heard_and_lets_a_silent_one_go() -> 
     assert lockstep.limit_ns() == 60 * MS
 
 
+def test_an_expected_follower_holds_simulated_time_at_0_until_its_first_word_or_its_patience_ends() -> None:
+    lockstep = Lockstep(period_ns=4 * MS, follower_slack_ns=10 * MS, release_s=1.0)
+    lockstep.expect("recorder", wall_s=0.0, patience_s=30.0)
+    lockstep.expect("identifier", wall_s=0.0, patience_s=30.0)
+    assert lockstep.limit_ns() == 0  # not a single step before their first word
+    lockstep.reached(0, wall_s=0.0)
+    assert lockstep.release_silent(wall_s=29.9) == []  # their own patience, not release_s
+    assert lockstep.follower("recorder", 0, wall_s=2.0)  # its first word: it joins
+    assert lockstep.limit_ns() == 0  # the identifier still holds it
+    assert lockstep.release_silent(wall_s=30.0) == [("identifier", None)]  # never heard
+    assert lockstep.limit_ns() == 4 * MS  # the flight goes on, up to the controller's first tick
+    lockstep.command(60 * MS)
+    lockstep.follower("recorder", 40 * MS, wall_s=30.1)
+    assert lockstep.limit_ns() == 50 * MS
+    lockstep.reached(50 * MS, wall_s=30.3)  # held by the recorder, which has spoken: release_s applies
+    assert lockstep.release_silent(wall_s=31.2) == []
+    assert lockstep.release_silent(wall_s=31.3) == [("recorder", 40 * MS)]
+
+
 def test_a_period_is_late_when_its_command_comes_after_it_ended() -> None:
     timing = ControlTiming(period_ns=4 * MS)
     timing.physics_at(40 * MS)  # before any command: no controller, nothing counted
@@ -184,8 +203,9 @@ def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatA
                 message.header.stamp = stamp_from_ns(round(t * NS_PER_S))
                 setpoints.publish(message)
             time.sleep(0.2)
-        # The recorder is subscribed before the simulator exists; the simulator's first 2 s (listening for
-        # another clock) give discovery the time to match it before simulated time starts.
+        # The recorder is subscribed before the simulator exists, and the simulator holds simulated time at
+        # 0 until the recorder's first word: its first 2 s (listening for another clock) were not always
+        # enough for discovery on a loaded machine (the recorder once missed the first 0.64 s).
         simulator = NodeProcess(
             "simulator",
             directory / f"{name}-simulator.log",
@@ -195,6 +215,7 @@ def fly_over_ros(probe: RosProbe, directory, namespace: str) -> dict[int, FloatA
                 "publish_clock": True,
                 "seed": SEED,
                 "lockstep_followers": PROBE_PROGRESS,
+                "lockstep_follower_start_wait_s": STARTUP_TIMEOUT_S,
             },
         )
         odom.wait_for(lambda m: m.stamp_ns >= FLIGHT_S * NS_PER_S, timeout=900.0)

@@ -55,6 +55,9 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   (a hexarotor losing a rotor has no margin for a verdict that comes late). A follower counts from the
   first word heard; one silent for ``FOLLOWER_RELEASE_S`` of wall time while simulated time waits for it
   is let go with a warning, and joins again when heard: a stopped identifier does not stop the flight.
+  With ``lockstep_follower_start_wait_s`` > 0 every follower is waited for from the start: simulated time
+  stays at 0 (its state resent) until each has been heard, for at most that much wall time each, so that
+  a recorder whose subscription discovery matches late still gets the whole flight.
 - ``real_time_factor`` r > 0: r x wall time. A control period is late when the command computed for it
   (stamped at its start) is not in force before the physics passes its end; the achieved real-time factor
   and late periods are published every second on ``pacing`` and a throttled warning says when the host
@@ -226,6 +229,17 @@ def simulator_parameters(
             "identifier/progress",
             "in lockstep, also wait for these nodes' progress (std_msgs/Header topics under each vehicle's "
             "namespace, comma-separated; '' = none): a follower counts once heard",
+            read_only=True,
+        ),
+        NodeParameter(
+            "lockstep_follower_start_wait_s",
+            0.0,
+            "in lockstep, simulated time stays at 0 until every follower has been heard, for at most this "
+            "long of wall time each (a recorder that must see the whole flight); 0 = a follower counts "
+            "once heard",
+            "s",
+            0.0,
+            3600.0,
             read_only=True,
         ),
         NodeParameter(
@@ -408,15 +422,9 @@ class _VehicleTopics:
         self.commands = subscribe(
             node, JointState, prefix + "motor_speed_cmd", partial(node.on_command, self), 10, raw=True
         )
+        self.follower_names = [node.resolve_topic_name(prefix + topic) for topic in node.follower_topics]
         self.followers = [
-            subscribe(
-                node,
-                Header,
-                prefix + topic,
-                partial(node.on_follower, node.resolve_topic_name(prefix + topic)),
-                10,
-            )
-            for topic in node.follower_topics
+            subscribe(node, Header, name, partial(node.on_follower, name), 10) for name in self.follower_names
         ]
 
 
@@ -585,6 +593,10 @@ class SimulatorNode(Node):
                 )
             )
         if self._lockstep is not None:
+            start_wait_s = self._params["lockstep_follower_start_wait_s"]
+            if start_wait_s > 0:
+                for name in (name for vehicle in self.vehicles for name in vehicle.follower_names):
+                    self._lockstep.expect(name, time.monotonic(), start_wait_s)
             self._run_to(self._lockstep.limit_ns())
 
     def _hear_clock(self, _: Clock) -> None:
@@ -778,10 +790,16 @@ class SimulatorNode(Node):
         now_s = time.monotonic()
         waited_s = self._lockstep.waiting_s(now_s)
         for topic, last_word_ns in self._lockstep.release_silent(now_s):
+            silence = (
+                f"not heard in the {self._params['lockstep_follower_start_wait_s']:g} s of wall time "
+                f"lockstep_follower_start_wait_s gives it (t = {self.sim.t_s:.3f} s)"
+                if last_word_ns is None
+                else f"silent for {FOLLOWER_RELEASE_S:g} s of wall time at t = {self.sim.t_s:.3f} s "
+                f"(its last word: {last_word_ns / NS_PER_S:.3f} s)"
+            )
             self.get_logger().warning(
-                f"lockstep: {topic} silent for {FOLLOWER_RELEASE_S:g} s of wall time at t = "
-                f"{self.sim.t_s:.3f} s (its last word: {last_word_ns / NS_PER_S:.3f} s): simulated time goes "
-                "on without that follower until it is heard again"
+                f"lockstep: {topic} {silence}: simulated time goes on without that follower until it is "
+                "heard again"
             )
         if self._stall is not None and self._stall.at_ns != self.sim.t_ns:
             self.get_logger().info(

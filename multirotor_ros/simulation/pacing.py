@@ -13,7 +13,11 @@
   slowest follower's word, so that what it concludes from the state of t reaches the controllers at the
   same simulated time in every run. A follower counts from the first word heard; one silent for
   ``release_s`` of wall time while simulated time waits for it is released (the simulator says so) and
-  joins again when heard: a stopped identifier must not stop the flight.
+  joins again when heard: a stopped identifier must not stop the flight. A follower that must see the
+  flight from its first instant (a recorder) is expected instead (:meth:`Lockstep.expect`): simulated
+  time stays at 0 until its first word, for as long as its own patience; a subscription that discovery
+  matches late then misses nothing (a probe that only counted from its first word lost the first 0.64 s
+  of a flight on a loaded machine).
 - :class:`ControlTiming`: in real time, whether each control period got its command in time (the command
   for the period starting at t, stamped t, is in force before the physics passes t + one period), and the
   achieved real-time factor: what the simulator reports on its ``pacing`` topic.
@@ -64,8 +68,10 @@ class _Follower:
     """A node that lockstep waits for besides the controllers: its word and when it was last heard."""
 
     handled_ns: int  # it has handled every input stamped up to this
-    heard_wall_s: float
+    heard_wall_s: float  # when it was last heard, or expected
+    patience_s: float  # wall time it may be silent while simulated time waits for it
     released: bool = False
+    heard: bool = True  # False for one expected that has not spoken yet
 
 
 class Lockstep:
@@ -99,16 +105,26 @@ class Lockstep:
         """``name`` has handled its inputs up to ``handled_ns``; True when it joins (or joins again)."""
         known = self._followers.get(name)
         if known is None or known.released:
-            self._followers[name] = _Follower(handled_ns, wall_s)
+            self._followers[name] = _Follower(handled_ns, wall_s, self.release_s)
             return True
+        joins = not known.heard
         known.handled_ns = max(known.handled_ns, handled_ns)
         known.heard_wall_s = wall_s
-        return False
+        known.patience_s = self.release_s
+        known.heard = True
+        return joins
 
-    def release_silent(self, wall_s: float) -> list[tuple[str, int]]:
-        """The followers simulated time waits for that were silent for ``release_s`` while it did: let go.
+    def expect(self, name: str, wall_s: float, patience_s: float) -> None:
+        """Wait for ``name`` from simulated time 0, before its first word: for ``patience_s`` of wall time.
 
-        Returns each one's name and last word [ns].
+        Simulated time stays at 0 until it is heard; silent that long, it is released as any follower is.
+        """
+        self._followers[name] = _Follower(-self.follower_slack_ns, wall_s, patience_s, heard=False)
+
+    def release_silent(self, wall_s: float) -> list[tuple[str, int | None]]:
+        """The followers simulated time waits for that were silent for their patience while it did: let go.
+
+        Returns each one's name and last word [ns] (None: expected, never heard).
 
         Silent since they were last heard or since the wait began, whichever is later: a follower has
         nothing to say while simulated time stands still for a controller.
@@ -119,9 +135,10 @@ class Lockstep:
         released = []
         for name, known in self._followers.items():
             holding = known.handled_ns + self.follower_slack_ns <= at_ns
-            if not known.released and holding and wall_s - max(known.heard_wall_s, since_s) >= self.release_s:
+            silent_s = wall_s - max(known.heard_wall_s, since_s)
+            if not known.released and holding and silent_s >= known.patience_s:
                 known.released = True
-                released.append((name, known.handled_ns))
+                released.append((name, known.handled_ns if known.heard else None))
         return released
 
     def command(self, stamp_ns: int, vehicle: int = 0) -> None:
