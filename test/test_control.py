@@ -14,6 +14,7 @@ import yaml
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from multirotor_ros.control import law as law_module
 from multirotor_ros.control.allocation import Allocator
 from multirotor_ros.control.gains import (
     GAIN_UNITS,
@@ -54,8 +55,12 @@ def test_saturation_is_monotone(a: float, c: float, b: float) -> None:
 
 
 @pytest.fixture(scope="module")
-def x8_law() -> SaturationController:
-    x8 = load_airframe("x8_octorotor")
+def x8():
+    return load_airframe("x8_octorotor")
+
+
+@pytest.fixture(scope="module")
+def x8_law(x8) -> SaturationController:
     return SaturationController(x8, airframe_gains(x8))
 
 
@@ -79,12 +84,12 @@ def test_the_yaw_error_is_taken_the_short_way_round(
     assert math.copysign(1.0, torque) == math.copysign(1.0, error)
 
 
+def test_the_compiled_law_reads_every_gain_but_the_rate() -> None:
+    # _law unpacks its array in _LAW_GAINS's order: a gain added to ControllerGains must be named there too.
+    assert sorted(law_module._LAW_GAINS) == sorted(set(GAIN_UNITS) - {"rate_hz"})
+
+
 # ------------------------------------------------------------------ signs of eq. 9 in ENU / FLU
-
-
-@pytest.fixture(scope="module")
-def x8():
-    return load_airframe("x8_octorotor")
 
 
 def _torque(airframe, position, yaw=0.0, velocity=(0.0, 0.0, 0.0)):

@@ -147,9 +147,17 @@ class SaturationController:
         return dt
 
 
+# The gains :func:`_law` reads, in the order it unpacks them from its array (rate_hz is the caller's).
+_LAW_GAINS = (
+    "k_px", "k_dx", "k_ptheta", "k_dtheta", "b_px", "b_dx", "b_ptheta", "b_dtheta",
+    "k_py", "k_dy", "k_pphi", "k_dphi", "b_py", "b_dy", "b_pphi", "b_dphi",
+    "k_pz", "k_dz", "k_iz", "i_limit_z", "b_iz", "k_ppsi", "k_dpsi", "k_ipsi", "i_limit_psi", "b_ipsi",
+)  # fmt: skip
+
+
 def _gain_array(gains: ControllerGains) -> FloatArray:
-    """The gains in the order of their fields (the order :func:`_law` reads them in)."""
-    return np.array([value for name, value in gains.as_dict().items() if name != "rate_hz"])
+    """The gains as :func:`_law` takes them: by name, in the order of :data:`_LAW_GAINS`."""
+    return np.array([getattr(gains, name) for name in _LAW_GAINS])
 
 
 def _law(
@@ -184,6 +192,7 @@ def _law(
     the yaw integral, alpha_psi): the integral steps are already clamped, the caller takes them back for
     anti-windup when the rotors cannot deliver.
     """
+    # In the order of _LAW_GAINS.
     (
         k_px, k_dx, k_ptheta, k_dtheta, b_px, b_dx, b_ptheta, b_dtheta,
         k_py, k_dy, k_pphi, k_dphi, b_py, b_dy, b_pphi, b_dphi,

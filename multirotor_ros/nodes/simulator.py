@@ -595,8 +595,9 @@ class SimulatorNode(Node):
         if self._lockstep is not None:
             start_wait_s = self._params["lockstep_follower_start_wait_s"]
             if start_wait_s > 0:
+                now_s = time.monotonic()
                 for name in (name for vehicle in self.vehicles for name in vehicle.follower_names):
-                    self._lockstep.expect(name, time.monotonic(), start_wait_s)
+                    self._lockstep.expect(name, now_s, start_wait_s)
             self._run_to(self._lockstep.limit_ns())
 
     def _hear_clock(self, _: Clock) -> None:
