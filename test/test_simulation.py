@@ -19,7 +19,7 @@ from multirotor_ros.cli import main as cli_main
 from multirotor_ros.io.flight_log import read_flight_log
 from multirotor_ros.model import state as S
 from multirotor_ros.model.airframe import airframe_from_dict, load_airframe
-from multirotor_ros.model.rotation import euler_to_quat
+from multirotor_ros.model.rotation import euler_to_quat, quat_multiply, quat_to_matrix
 from multirotor_ros.simulation.flight import (
     ControlTrace,
     FaultTolerance,
@@ -30,6 +30,7 @@ from multirotor_ros.simulation.flight import (
 )
 from multirotor_ros.simulation.pacing import RealTimePacer
 from multirotor_ros.simulation.sensors import (
+    Imu,
     ImuReading,
     SensorConfig,
     range_readings,
@@ -193,6 +194,47 @@ def test_without_noise_the_imu_reads_the_truth(x8) -> None:
     reading = _readings(sim, "imu", 100 * MS)[-1]
     thrust_acceleration = 8 * x8.k_f_N_s2 * (sim.hover_speed_rad_s * 1.1) ** 2 / x8.mass_kg
     np.testing.assert_allclose(reading.specific_force_B, [0, 0, thrust_acceleration], rtol=1e-6, atol=1e-9)
+
+
+finite = st.floats(-20.0, 20.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    attitude=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1),
+    acceleration=st.lists(finite, min_size=3, max_size=3),
+    rate=st.lists(finite, min_size=3, max_size=3),
+    normals=st.lists(st.floats(-4.0, 4.0), min_size=15, max_size=15),
+)
+def test_the_compiled_imu_is_its_numpy_definition(attitude, acceleration, rate, normals) -> None:
+    """Bias walk, specific force R(q)^T (a + g e_z), white noise and the turned attitude, draw for draw."""
+    config = SensorConfig(imu_rate_hz=400.0)
+    q = np.array([attitude]) / np.linalg.norm(attitude)
+    a, w, z = np.array([acceleration]), np.array([rate]), np.array([normals])
+    initial = np.random.default_rng(0).standard_normal((1, Imu.INITIAL_DRAWS))
+    imu = Imu(config, initial, 9.81)
+    imu.sample(1.0, q, a, w, np.zeros((1, Imu.draws(config))))  # the first sample has no interval: no walk
+    (reading,) = imu.sample(1.0025, q, a, w, z)
+    walk = math.sqrt(0.0025 / config.BIAS_STABILITY_TIME_S)
+    accel_bias = (
+        config.accel_bias_initial_m_s2 * initial[0, 0:3] + config.accel_bias_stability_m_s2 * walk * z[0, 0:3]
+    )
+    gyro_bias = (
+        config.gyro_bias_initial_rad_s * initial[0, 3:6] + config.gyro_bias_stability_rad_s * walk * z[0, 3:6]
+    )
+    np.testing.assert_allclose(imu.accel_bias[0], accel_bias, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(imu.gyro_bias[0], gyro_bias, rtol=1e-12, atol=1e-15)
+    force = (
+        quat_to_matrix(q[0]).T @ (a[0] + [0.0, 0.0, 9.81])
+        + accel_bias
+        + config.accel_sample_std_m_s2 * z[0, 6:9]
+    )
+    np.testing.assert_allclose(reading.specific_force_B, force, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        reading.w_WB_B, w[0] + gyro_bias + config.gyro_sample_std_rad_s * z[0, 9:12], atol=1e-12
+    )
+    turned = quat_multiply(q[0], euler_to_quat(config.orientation_noise_rad * z[0, 12:15]))
+    np.testing.assert_allclose(reading.q_WB, turned / np.linalg.norm(turned), atol=1e-12)
 
 
 def test_motion_capture_noise_is_about_a_millimetre(x8) -> None:

@@ -114,7 +114,8 @@ class SimulatorPhysics:
         self._imu_due = _Rate(config.imu_rate_hz)
         self._motor_speeds_due = _Rate(config.rotor_speed_rate_hz)
         self._readings: list[Reading] = []
-        self.state = self._snapshot(np.zeros((1, 3)))
+        self._mean_acceleration = np.zeros((1, 3))
+        self.state = self._snapshot(self._mean_acceleration)
         self._collect_due()
 
     @property
@@ -166,12 +167,16 @@ class SimulatorPhysics:
             )
         start_ns = simulator.t_ns
         simulator.x, simulator.t_ns = x, t_ns
-        self._readings += simulator.take_crashes(start_ns, dt_ns // substeps)
+        if crashes is not None and crashes.crash_step[0] >= 0:  # one vehicle: its entry, not a reduction
+            self._readings += simulator.take_crashes(start_ns, dt_ns // substeps)
         frame_rate_hz = round(NS_PER_S / dt_ns)  # 1200 for frames of 833,333 and 833,334 ns alike
         if frame_rate_hz != self._imu_rate_hz:
             self._imu_rate_hz = frame_rate_hz
             self._imu.config = dataclasses.replace(self._imu.config, imu_rate_hz=frame_rate_hz)
-        self.state = self._snapshot((x[:, S.VELOCITY] - x_before[:, S.VELOCITY]) * (NS_PER_S / dt_ns))
+        mean_acceleration = self._mean_acceleration  # the IMU reads it and keeps nothing of it
+        np.subtract(x[:, S.VELOCITY], x_before[:, S.VELOCITY], out=mean_acceleration)
+        mean_acceleration *= NS_PER_S / dt_ns
+        self.state = self._snapshot(mean_acceleration)
         self._collect_due()
         return self.state
 

@@ -26,20 +26,21 @@ row k drawn from vehicle k's own generator (:func:`standard_normals`), so that v
 same whether it is simulated alone or in a fleet; each model says how many it takes per vehicle and
 sample (``*_draws``) and in which order it uses them, so a caller may draw for several sensors due at
 the same time in one call per vehicle. The rest is vectorised over the vehicles: elementwise numpy
-arithmetic, and two small compiled kernels for the quaternion arithmetic, neither of which makes one
+arithmetic, and compiled kernels for the quaternion arithmetic (imu_kernels.py), none of which makes one
 vehicle's result depend on how many others share the arrays.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 
-from multirotor_ros.model.jit import kernel
 from multirotor_ros.model.rotation import FloatArray
 
 DEG = math.pi / 180.0
@@ -146,79 +147,21 @@ def standard_normals(rngs: Sequence[np.random.Generator], count: int) -> FloatAr
     return out
 
 
-# Two small kernels (model/jit.py) do the quaternion arithmetic of every vehicle in one call; each vehicle
-# is computed by the same scalar code, whatever the number of vehicles.
+# The quaternion arithmetic of every vehicle is one compiled call (simulation/imu_kernels.py, imported on
+# first use: it imports numba); each vehicle is computed by the same scalar code, whatever their number.
 
 
-def _imu_lanes(
-    q_WB: FloatArray,
-    a_WB_W: FloatArray,
-    w_WB_B: FloatArray,
-    z: FloatArray,
-    gravity: float,
-    bias_steps: FloatArray,
-    sample_stds: FloatArray,
-    orientation_std: float,
-    accel_bias: FloatArray,
-    gyro_bias: FloatArray,
-    f_B: FloatArray,
-    w_B: FloatArray,
-    angles: FloatArray,
-) -> None:
-    """One IMU sample per vehicle k (Imu.sample): the biases walk (in place), then the readings.
+@functools.cache  # an import statement in every sample costs a tenth of the sample
+def _kernels() -> ModuleType:
+    from multirotor_ros.simulation import imu_kernels
 
-    ``bias_steps`` and ``sample_stds``: (accelerometer, gyro) bias walk step and white-noise sigma. The
-    specific force (what an accelerometer measures, R(q)^T (a - g_vec) with g_vec = (0, 0, -g); R as
-    rotation.quat_to_matrix) gets bias and noise added; ``angles``
-    the orientation noise (ZYX, zero when ``orientation_std`` is 0). One compiled pass instead of some
-    fifteen numpy calls on 3-vectors: the MAVLink bridge samples the IMU at every flight-stack frame.
-    """
-    for k in range(q_WB.shape[0]):
-        for i in range(3):
-            accel_bias[k, i] = accel_bias[k, i] + bias_steps[0] * z[k, i]
-            gyro_bias[k, i] = gyro_bias[k, i] + bias_steps[1] * z[k, 3 + i]
-        w, x, y, zq = q_WB[k, 0], q_WB[k, 1], q_WB[k, 2], q_WB[k, 3]
-        a, b, c = a_WB_W[k, 0] + 0.0, a_WB_W[k, 1] + 0.0, a_WB_W[k, 2] + gravity
-        f0 = (1 - 2 * (y * y + zq * zq)) * a + 2 * (x * y + w * zq) * b + 2 * (x * zq - w * y) * c
-        f1 = 2 * (x * y - w * zq) * a + (1 - 2 * (x * x + zq * zq)) * b + 2 * (y * zq + w * x) * c
-        f2 = 2 * (x * zq + w * y) * a + 2 * (y * zq - w * x) * b + (1 - 2 * (x * x + y * y)) * c
-        f_B[k, 0] = (f0 + accel_bias[k, 0]) + sample_stds[0] * z[k, 6]
-        f_B[k, 1] = (f1 + accel_bias[k, 1]) + sample_stds[0] * z[k, 7]
-        f_B[k, 2] = (f2 + accel_bias[k, 2]) + sample_stds[0] * z[k, 8]
-        for i in range(3):
-            w_B[k, i] = (w_WB_B[k, i] + gyro_bias[k, i]) + sample_stds[1] * z[k, 9 + i]
-            angles[k, i] = orientation_std * z[k, 12 + i] if orientation_std > 0 else 0.0
-
-
-def _turned_lanes(q_WB: FloatArray, angles_rad: FloatArray, out: FloatArray) -> None:
-    """out[k] = q_WB[k] ⊗ q(angles_rad[k]), unit norm: attitudes turned by small ZYX angles.
-
-    q(roll, pitch, yaw) as rotation.euler_to_quat; zero angles give (1, 0, 0, 0) and leave q_WB exactly.
-    """
-    for k in range(q_WB.shape[0]):
-        cr, sr = math.cos(angles_rad[k, 0] / 2), math.sin(angles_rad[k, 0] / 2)
-        cp, sp = math.cos(angles_rad[k, 1] / 2), math.sin(angles_rad[k, 1] / 2)
-        cy, sy = math.cos(angles_rad[k, 2] / 2), math.sin(angles_rad[k, 2] / 2)
-        bw = cr * cp * cy + sr * sp * sy
-        bx = sr * cp * cy - cr * sp * sy
-        by = cr * sp * cy + sr * cp * sy
-        bz = cr * cp * sy - sr * sp * cy
-        aw, ax, ay, az = q_WB[k, 0], q_WB[k, 1], q_WB[k, 2], q_WB[k, 3]
-        w = aw * bw - ax * bx - ay * by - az * bz
-        x = aw * bx + ax * bw + ay * bz - az * by
-        y = aw * by - ax * bz + ay * bw + az * bx
-        z = aw * bz + ax * by - ay * bx + az * bw
-        norm = math.sqrt(w * w + x * x + y * y + z * z)
-        out[k, 0] = w / norm
-        out[k, 1] = x / norm
-        out[k, 2] = y / norm
-        out[k, 3] = z / norm
+    return imu_kernels
 
 
 def _turned(q_WB: FloatArray, angles_rad: FloatArray) -> FloatArray:
     """(V, 4) unit attitudes q_WB (V, 4) turned by small ZYX angles (V, 3)."""
     out = np.empty((q_WB.shape[0], 4))
-    kernel(_turned_lanes)(q_WB, angles_rad, out)
+    _kernels().turned_lanes(q_WB, angles_rad, out)
     return out
 
 
@@ -251,13 +194,25 @@ class Imu:
     def __init__(self, config: SensorConfig, z: FloatArray, gravity_m_s2: float):
         self.config = config
         self.gravity_m_s2 = gravity_m_s2
-        self.accel_bias: FloatArray = config.accel_bias_initial_m_s2 * z[:, 0:3]
-        self.gyro_bias: FloatArray = config.gyro_bias_initial_rad_s * z[:, 3:6]
+        # (V, 6): accelerometer then gyro, walked in place by each sample.
+        self._biases = np.concatenate(
+            (config.accel_bias_initial_m_s2 * z[:, 0:3], config.gyro_bias_initial_rad_s * z[:, 3:6]), axis=1
+        )
         self._last_t: float | None = None
-        # The bias-walk step and white-noise sigmas of the last sample's config and interval.
+        # The kernel's constants (imu_kernels.imu_lanes) for the last sample's config and interval.
         self._scaled_config: SensorConfig | None = None
         self._scaled_dt = math.nan
-        self._scales: tuple[FloatArray, FloatArray] = (np.zeros(2), np.zeros(2))
+        self._constants = np.zeros(6)
+
+    @property
+    def accel_bias(self) -> FloatArray:
+        """(V, 3) the accelerometers' biases now [m/s^2] (a copy)."""
+        return self._biases[:, 0:3].copy()
+
+    @property
+    def gyro_bias(self) -> FloatArray:
+        """(V, 3) the gyros' biases now [rad/s] (a copy)."""
+        return self._biases[:, 3:6].copy()
 
     @staticmethod
     def draws(config: SensorConfig) -> int:
@@ -279,35 +234,25 @@ class Imu:
         c = self.config
         dt = 0.0 if self._last_t is None else max(t_s - self._last_t, 0.0)
         self._last_t = t_s
+        kernels = _kernels()
         # Intervals differ in their last bits (differences of float times; ArduPilot's 1200 Hz frames
         # alternate 833,333 and 833,334 ns): within SAME_INTERVAL_S the scales stay.
         if c is not self._scaled_config or abs(dt - self._scaled_dt) > SAME_INTERVAL_S:
             walk = math.sqrt(dt / c.BIAS_STABILITY_TIME_S)
-            self._scales = (
-                np.array([c.accel_bias_stability_m_s2 * walk, c.gyro_bias_stability_rad_s * walk]),
-                np.array([c.accel_sample_std_m_s2, c.gyro_sample_std_rad_s]),
-            )
+            constants = self._constants
+            constants[kernels.ACCEL_BIAS_STEP] = c.accel_bias_stability_m_s2 * walk
+            constants[kernels.GYRO_BIAS_STEP] = c.gyro_bias_stability_rad_s * walk
+            constants[kernels.ACCEL_SIGMA] = c.accel_sample_std_m_s2
+            constants[kernels.GYRO_SIGMA] = c.gyro_sample_std_rad_s
+            constants[kernels.ORIENTATION_SIGMA] = c.orientation_noise_rad
+            constants[kernels.GRAVITY] = self.gravity_m_s2
             self._scaled_config, self._scaled_dt = c, dt
-        f_B, w_B, angles = np.empty((3, *a_WB_W.shape))
-        # New bias arrays each sample: a reading handed out earlier keeps the biases of its time.
-        self.accel_bias, self.gyro_bias = self.accel_bias.copy(), self.gyro_bias.copy()
-        kernel(_imu_lanes)(
-            q_WB,
-            a_WB_W,
-            w_WB_B,
-            z,
-            self.gravity_m_s2,
-            *self._scales,
-            c.orientation_noise_rad,
-            self.accel_bias,
-            self.gyro_bias,
-            f_B,
-            w_B,
-            angles,
-        )
-        q = _turned(q_WB, angles)
+        # A new array each sample: the readings handed out are views of it.
+        out = np.empty((q_WB.shape[0], kernels.OUT_COLUMNS))
+        kernels.imu_lanes(q_WB, a_WB_W, w_WB_B, z, self._constants, self._biases, out)
+        q, f, w = kernels.OUT_QUATERNION, kernels.OUT_SPECIFIC_FORCE, kernels.OUT_RATE
         # Rows by index: iterating arrays row by row (zip) costs three times as much for one vehicle.
-        return [ImuReading(q[k], f_B[k], w_B[k]) for k in range(len(q))]
+        return [ImuReading(out[k, q], out[k, f], out[k, w]) for k in range(len(out))]
 
 
 def range_readings(
