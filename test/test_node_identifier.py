@@ -324,7 +324,12 @@ def test_identifier_refuses_bad_messages_logs_them_once_and_keeps_publishing(
 def test_a_fault_set_with_ros2_param_set_is_named_on_diagnostics(
     tmp_path: Path, ros_probe: RosProbe, source: str
 ) -> None:
-    """Simulator + controller + identifier over topics; the fault is injected by setting parameters."""
+    """Simulator + controller + identifier over topics; the fault is injected by setting parameters.
+
+    In lockstep, the default: in real time a loaded host delayed the pose or the IMU by a few periods
+    around the injection (the simulator late, a burst), and the identifier, rightly, learnt its noise
+    again after that gap before it named the fault: 0.79 s instead of 0.1-0.25 s, twice in full runs.
+    """
     diagnostics = ros_probe.subscribe("/e2e/diagnostics", DiagnosticArray)
     residuals = ros_probe.subscribe("/e2e/residuals", Vector3Stamped)
     truth = ros_probe.subscribe("/e2e/injected_faults", DiagnosticArray)
@@ -341,14 +346,17 @@ def test_a_fault_set_with_ros2_param_set_is_named_on_diagnostics(
             parameters={"use_sim_time": True, "fault_tolerant_allocation": False},
         ),
         NodeProcess(
-            "identifier", tmp_path / "identifier.log", **common, parameters={"input": source}
+            "identifier",
+            tmp_path / "identifier.log",
+            **common,
+            parameters={"input": source, "use_sim_time": True},
         ) as identifier,
         NodeProcess(
             "simulator",
             tmp_path / "simulator.log",
             **common,
             parameters={
-                "real_time_factor": 1.0,
+                "real_time_factor": 0.0,
                 "publish_clock": True,
                 "initial_z": 2.0,
                 "seed": 4,

@@ -575,6 +575,7 @@ class IdentifierNode(Node):
             return
         self._used["pose"] = message
         self._state_frame = message.header.frame_id
+        self._take_fused()
 
     def _on_imu(self, message: Imu) -> None:
         if not self._arrived("imu", message):
@@ -585,13 +586,20 @@ class IdentifierNode(Node):
             self._refused["state"].refuse(refusal.reason, refusal.detail)
             return
         assert not isinstance(imu, Refusal)
-        sample = self._fusion.imu(stamp_to_ns(message.header.stamp), *imu)
-        if isinstance(sample, Unpaired):
-            self._skipped.refuse(sample.reason, sample.detail)
-        elif isinstance(sample, Refusal):
-            self._refused["state"].refuse(sample.reason, sample.detail)
-        elif self._take(sample):
-            self._used["imu"] = message
+        refusal = self._fusion.imu(stamp_to_ns(message.header.stamp), *imu)
+        if refusal is not None:
+            self._refused["state"].refuse(refusal.reason, refusal.detail)
+            return
+        self._used["imu"] = message  # taken: its sample may wait for its pose (ident/pose_imu.py)
+        self._take_fused()
+
+    def _take_fused(self) -> None:
+        """Give the monitor the IMU messages the fusion has decided (pose_imu input)."""
+        for sample in self._fusion.decided():
+            if isinstance(sample, Unpaired):
+                self._skipped.refuse(sample.reason, sample.detail)
+            else:
+                self._take(sample)
 
     def _take(self, sample: StateSample) -> bool:
         """Give a state sample to the monitor; whether it took it."""
