@@ -93,7 +93,8 @@ class PoseImuFusion:
         self.limits = limits or StateLimits()
         # Accepted poses, oldest first, as far back as a waiting IMU message may need (pose()).
         self._poses: deque[_Pose] = deque()
-        # IMU messages not yet decided (stamp, body rates, specific force), oldest first; then decided ones.
+        # IMU messages not yet decided (stamp, body rates, specific force), oldest first; then the decided
+        # ones until decided() hands them out.
         self._waiting: deque[tuple[int, FloatArray, FloatArray]] = deque()
         self._decided: list[StateSample | Unpaired] = []
 

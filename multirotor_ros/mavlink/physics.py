@@ -167,8 +167,7 @@ class SimulatorPhysics:
             )
         start_ns = simulator.t_ns
         simulator.x, simulator.t_ns = x, t_ns
-        if crashes is not None and crashes.crash_step[0] >= 0:  # one vehicle: its entry, not a reduction
-            self._readings += simulator.take_crashes(start_ns, dt_ns // substeps)
+        self._readings += simulator.take_crashes(start_ns, dt_ns // substeps)
         frame_rate_hz = round(NS_PER_S / dt_ns)  # 1200 for frames of 833,333 and 833,334 ns alike
         if frame_rate_hz != self._imu_rate_hz:
             self._imu_rate_hz = frame_rate_hz
