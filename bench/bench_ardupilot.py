@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/bench_ardupilot.py [--speedups 1,5,10] [--rate 1200] [--airframe quad_x]
                                               [--via library,node,node-heard,node-heard-typed]
+                                              [--answers exact,ahead]
                                               [--rounds 1] [--json FILE]
 
 ArduCopter SITL (shared/flight_stacks/ardupilot, see SOURCE.md there) flies the test mission of
@@ -20,6 +21,10 @@ turning east, LAND, disarm) against the bridge, once per requested speedup and w
 - ``node-heard-typed``: the same with the subscriber taking message objects, as a Python node that reads
   every field does (an Odometry costs it about 45 us to convert).
 
+And once per way of answering (``--answers``): ``exact`` lockstep, each frame integrated before it is
+answered, and ``ahead`` (``answer_ahead``, :mod:`multirotor_ros.mavlink.ardupilot`): each frame answered
+with the state integrated after the last one, its own servos integrated while SITL takes its turn.
+
 Either subscriber, in Python, takes as many messages as a core lets it: on two cores it is a third busy
 process beside SITL and the bridge.
 
@@ -27,7 +32,9 @@ Per run: the real-time factor achieved (ArduCopter's simulated seconds per wall 
 to disarming) against the requested speedup; the bridge's answer time per frame (the servo packet's
 arrival, kernel time stamp, to our answer leaving) and SITL's own time per frame (our answer leaving to
 its next packet's arrival: at 1200 Hz two frames in three SITL only integrates, the third runs
-ArduCopter's 400 Hz loop), p50 / p95 / p99; the bridge process's CPU use; frames, missed and repeated
+ArduCopter's 400 Hz loop), p50 / p95 / p99; how long each frame kept the bridge busy (the arrival to the
+end of its work on the frame: answering ahead, the next frame's integration included); the bridge
+process's CPU use; frames, missed and repeated
 frames. The load average is printed with every figure: the machine may be shared.
 """
 
@@ -82,7 +89,9 @@ def ground_station(port: int) -> dict[str, float]:
     return {**asdict(times), "wall_s": time.monotonic() - start}
 
 
-def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path) -> dict[str, float]:
+def run_library(
+    airframe_name: str, speedup: float, rate_hz: int, workdir: Path, answer_ahead: bool
+) -> dict[str, float]:
     from multirotor_ros.mavlink.actuators import RotorChannels
     from multirotor_ros.mavlink.ardupilot import ArduPilotConfig
     from multirotor_ros.mavlink.bridge import BridgeConfig, BridgeOutputs, MavlinkBridge
@@ -91,7 +100,9 @@ def run_library(airframe_name: str, speedup: float, rate_hz: int, workdir: Path)
 
     airframe = load_airframe(airframe_name)
     config = BridgeConfig(
-        "ardupilot", ardupilot=ArduPilotConfig(port=0, measure_timing=True), ground_station=None
+        "ardupilot",
+        ardupilot=ArduPilotConfig(port=0, measure_timing=True, answer_ahead=answer_ahead),
+        ground_station=None,
     )
     outputs = BridgeOutputs(lambda speeds, t: None, lambda state: None, lambda setpoint: None)
     bridge = MavlinkBridge(config, RotorChannels(airframe), SimulatorPhysics.for_airframe(airframe), outputs)
@@ -171,7 +182,12 @@ def listen(typed: bool) -> dict[str, int]:
 
 
 def run_node(
-    airframe_name: str, speedup: float, rate_hz: int, workdir: Path, listener_kind: str | None = None
+    airframe_name: str,
+    speedup: float,
+    rate_hz: int,
+    workdir: Path,
+    answer_ahead: bool,
+    listener_kind: str | None = None,
 ) -> dict[str, float]:
     port = _free_udp_port()
     environment = dict(
@@ -180,6 +196,7 @@ def run_node(
     parameters = {
         "airframe": airframe_name, "flight_stack": "ardupilot", "flight_stack_port": port,
         "publish_clock": "true", "gcs_enabled": "false", "measure_timing": "true",
+        "flight_stack_answer_ahead": str(answer_ahead).lower(),
     }  # fmt: skip
     command = [sys.executable, "-m", "multirotor_ros.cli", "node", "mavlink_bridge", "--ros-args"]
     for name, value in parameters.items():
@@ -241,15 +258,16 @@ def _free_udp_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _line(via: str, speedup: float, rate_hz: int, run: dict[str, float]) -> str:
+def _line(via: str, answers: str, speedup: float, rate_hz: int, run: dict[str, float]) -> str:
     factor = run["landed_s"] / run["wall_s"]
     return (
-        f"  {via:10s} speedup {speedup:4g}: {factor:5.2f}x real time ({run['frames']:.0f} frames at "
-        f"{rate_hz} Hz, "
+        f"  {via:10s} {answers:5s} speedup {speedup:4g}: {factor:5.2f}x real time "
+        f"({run['frames']:.0f} frames at {rate_hz} Hz, "
         f"{run['missed_frames']:.0f} missed, {run['repeated_frames']:.0f} repeated); answer p50/p95/p99 "
         f"{run['answer_p50_ms']:.3f}/{run['answer_p95_ms']:.3f}/{run['answer_p99_ms']:.3f} ms, SITL "
         f"{run['flight_stack_p50_ms']:.3f}/{run['flight_stack_p95_ms']:.3f}/"
-        f"{run['flight_stack_p99_ms']:.3f} ms; "
+        f"{run['flight_stack_p99_ms']:.3f} ms, busy p50/p99 "
+        f"{run['busy_p50_ms']:.3f}/{run['busy_p99_ms']:.3f} ms; "
         f"bridge CPU {100 * run['cpu_share']:.0f} % of a core; take-off to 5 m "
         f"{run['reached_s'] - run['armed_s']:.1f} s; load average {os.getloadavg()[0]:.1f}"
         + "".join(f"; {key} {value:.0f}" for key, value in run.items() if key.startswith("received "))
@@ -265,6 +283,9 @@ def main(argv: list[str] | None = None) -> int:
         "--via",
         default="library,node,node-heard",
         help="library, node, node-heard, node-heard-typed (comma separated)",
+    )
+    parser.add_argument(
+        "--answers", default="exact,ahead", help="exact, ahead (comma separated): how frames are answered"
     )
     parser.add_argument("--rounds", type=int, default=1, help="runs of each combination")
     parser.add_argument("--json", type=Path, help="also write the results here")
@@ -289,10 +310,15 @@ def main(argv: list[str] | None = None) -> int:
     for _ in range(args.rounds):
         for speedup in (float(s) for s in args.speedups.split(",")):
             for via in args.via.split(","):
-                with tempfile.TemporaryDirectory(prefix="bench_ardupilot_") as scratch:
-                    run = runners[via](args.airframe, speedup, args.rate, Path(scratch))
-                print(_line(via, speedup, args.rate, run), flush=True)
-                results.append({"via": via, "speedup": speedup, "rate_hz": args.rate, **run})
+                for answers in args.answers.split(","):
+                    with tempfile.TemporaryDirectory(prefix="bench_ardupilot_") as scratch:
+                        run = runners[via](
+                            args.airframe, speedup, args.rate, Path(scratch), answers == "ahead"
+                        )
+                    print(_line(via, answers, speedup, args.rate, run), flush=True)
+                    results.append(
+                        {"via": via, "answers": answers, "speedup": speedup, "rate_hz": args.rate, **run}
+                    )
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0

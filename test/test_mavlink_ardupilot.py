@@ -246,6 +246,54 @@ def test_every_frame_advances_exactly_one_period_whatever_the_rate(quad, frame_r
     assert stamps[-1] * frame_rate_hz == pytest.approx(round(stamps[-1] * frame_rate_hz), abs=1e-6)
 
 
+def _answers(quad, answer_ahead: bool, frames: list[tuple[int, list[int]]]) -> list[dict]:
+    """A bridge's answers (physics seed 2) to servo packets of (frame rate, pwm), frame counts 1, 2, ..."""
+    airframe, channels = quad
+    config = BridgeConfig(
+        "ardupilot", ardupilot=ArduPilotConfig(port=0, answer_ahead=answer_ahead), ground_station=None
+    )
+    outputs = BridgeOutputs(lambda s, t: None, lambda state: None, lambda sp: None)
+    physics = SimulatorPhysics.for_airframe(airframe, seed=2)
+    with BridgeThread(MavlinkBridge(config, channels, physics, outputs)) as bridge:
+        peer = ArduPilotLikePeer(bridge.flight_stack_port, HoverController(channels))
+        try:
+            answers = []
+            for rate_hz, pwm in frames:
+                peer.frame_rate_hz = rate_hz
+                answers.append(peer.exchange(pwm))
+            # A repeated frame gets its answer again; a frame count from 1 again (SITL restarted) is
+            # answered at once from the reset vehicle, with nothing integrated ahead.
+            answers.append(peer.exchange(frames[-1][1], frame_count=peer.frame_count))
+            peer.frame_count, peer.frame_rate_hz = 0, frames[0][0]
+            answers.append(peer.exchange(frames[0][1]))
+        finally:
+            peer.close()
+        assert bridge.refusals.total == 0 and bridge.ardupilot.restarts == 1
+    return answers
+
+
+def test_answering_ahead_gives_the_exact_answers_to_each_frame_one_frame_late(quad):
+    """Answered ahead, servos P1, P2, ... get the answers exact lockstep gives to P1, P1, P2, ...
+
+    Bit for bit, the sensor noise included, through a change of frame rate (which takes effect one frame
+    later too), a repeated frame and a restart.
+    """
+    rng = np.random.default_rng(7)
+    frames = [
+        (1200 if k < 150 else 400, rng.integers(1720, 1950, 4).tolist() + [1000] * 12) for k in range(300)
+    ]
+    ahead = _answers(quad, True, frames)
+    exact = _answers(quad, False, frames[:1] + frames[:-1])
+    assert ahead[:-1] == exact[:-1]
+    assert -ahead[-3]["position"][2] > 0.2  # it flew
+    stamps = np.array([answer["timestamp"] for answer in ahead[:-2]])
+    np.testing.assert_allclose(np.diff(stamps)[:150], 1 / 1200, atol=1e-9)  # the 151st at 400 Hz: one late
+    np.testing.assert_allclose(np.diff(stamps)[150:], 1 / 400, atol=1e-9)
+    assert ahead[-2] == ahead[-3]  # the repeated frame
+    restarted = ahead[-1]
+    assert restarted["timestamp"] == pytest.approx(1 / 1200) and restarted == exact[-1]
+
+
 @pytest.mark.parametrize(("dt_ns", "substeps"), [(2_500_000, 3), (833_333, 1), (500_000, 1), (4_000_000, 4)])
 def test_a_frame_is_integrated_in_equal_substeps_no_longer_than_the_physics_step(quad, dt_ns, substeps):
     airframe, _ = quad

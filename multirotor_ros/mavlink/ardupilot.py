@@ -24,7 +24,17 @@ flying continues, one frame's Δt per frame received.
 The answer goes out before anything else is done with the frame (the rotor command and the new state
 reach ROS after it, :meth:`~multirotor_ros.mavlink.vehicle.Simulation.announce`). With
 ``measure_timing`` the session keeps, per frame, how long the answer took from the datagram's arrival
-(kernel time stamp) and how long SITL took from our answer to its next frame: :class:`FrameTimes`.
+(kernel time stamp), how long SITL took from our answer to its next frame, and how long the frame kept
+this side busy: :class:`FrameTimes`.
+
+Answering ahead (``answer_ahead``, internal physics only). Exact lockstep integrates a frame's servos
+while SITL waits, so a frame costs SITL's turn plus ours, one after the other. Answering ahead, each frame
+is answered at once with the state integrated after the previous frame, and its own servos are then
+integrated over the next frame while SITL runs its turn: on two cores the two turns overlap. The price is
+one frame of actuator delay (1/frame_rate: 0.83 ms at SITL's 1200 Hz, short beside a motor's time
+constant of tens of ms), and a change of frame rate takes effect one frame later too. The first frame,
+and the first after a restart, have nothing integrated ahead and are answered exactly. The replies to
+servos P1, P2, ... are those exact lockstep gives to P1, P1, P2, ...
 
 Faults. Packets of the wrong size or magic, or with a frame rate of 0 or above 10 kHz, are refused and
 counted. Packets from a second address while the current peer is active (heard from within
@@ -123,6 +133,17 @@ def state_json_line(state: VehicleState) -> bytes:
     return _json_line(ned_view(state))  # NaN or beyond a float's range: spelt as JSON spells them
 
 
+class _Answer(NamedTuple):
+    """A frame's answer: its JSON line and the simulated time it tells."""
+
+    line: bytes
+    t_s: float
+
+
+def _answer(state: VehicleState) -> _Answer:
+    return _Answer(state_json_line(state), state.t_s)
+
+
 def _json_line(view: NedView) -> bytes:
     document = {
         "timestamp": view.t_s,
@@ -145,6 +166,9 @@ class ArduPilotConfig:
     # [s] after an answer, poll for the next frame this long without sleeping, when SITL's last turn was
     # no longer (ArduPilotSession.wait_for_next_frame); 0 = always sleep in the selector.
     busy_wait_s: float = 0.0003
+    # Answer each frame with the state integrated after the previous one (module docstring): SITL's turn
+    # and the integration overlap, for one frame of actuator delay.
+    answer_ahead: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.busy_wait_s) and 0.0 <= self.busy_wait_s <= MAX_BUSY_WAIT_S):
@@ -182,6 +206,7 @@ class ArduPilotSession:
         self.times = FrameTimes() if config.measure_timing else None
         self._last_reply = b""
         self._last_reply_t_s = -math.inf
+        self._ahead: _Answer | None = None  # answer_ahead: the next frame's answer, integrated already
         # SITL's last turn (our answer out to its next frame in) [s], and when the last answer went out.
         self.last_turn_s = math.inf
         self._answered_at_s: float | None = None
@@ -239,23 +264,40 @@ class ArduPilotSession:
             self.simulation.reset()
             self._rate_hz = 0  # time starts again from the reset vehicle's 0
             self._last_reply_t_s = -math.inf
+            self._ahead = None
             self.on_restart()
         elif last is not None and packet.frame_count > last + 1:
             self.missed_frames += packet.frame_count - last - 1
         self.last_frame = packet.frame_count
         self.frames += 1
+        if self._ahead is not None:
+            self._send_answer(self._ahead)
+            self._hold_command(packet)
+            self._ahead = self._integrated(packet.frame_rate_hz)
+        else:
+            self._hold_command(packet)
+            if self.simulation.internal:
+                self._send_answer(self._integrated(packet.frame_rate_hz))
+                if self.config.answer_ahead:  # from the next frame on, SITL's turn and ours overlap
+                    self._ahead = self._integrated(packet.frame_rate_hz)
+            elif self.simulation.latest.t_s > self._last_reply_t_s:
+                self._send_answer(_answer(self.simulation.latest))
+            else:
+                self._awaiting_state = True
+        self.simulation.announce()
+        if self.times is not None:
+            self.times.busy(self.endpoint.arrival_ns, time.time_ns())
+
+    def _hold_command(self, packet: ServoPacket) -> None:
         command = self.channels.from_servo_packet(packet.pwm_us)
         for problem in command.problems:
             self.refusals.refuse(problem.reason, f"servo packet {packet.frame_count}: {problem.detail}")
         if command.speeds_rad_s is not None:
             self.simulation.command(command.speeds_rad_s)
-        if self.simulation.internal:
-            self._reply(self.simulation.advance_to(self._frame_time_ns(packet.frame_rate_hz)))
-        elif self.simulation.latest.t_s > self._last_reply_t_s:
-            self._reply(self.simulation.latest)
-        else:
-            self._awaiting_state = True
-        self.simulation.announce()
+
+    def _integrated(self, rate_hz: int) -> _Answer:
+        """The answer at the end of the next frame at ``rate_hz``, integrated with the held command."""
+        return _answer(self.simulation.advance_to(self._frame_time_ns(rate_hz)))
 
     def _frame_time_ns(self, rate_hz: int) -> int:
         """When this frame ends: one more 1/rate_hz after the base (rebased when the rate changes)."""
@@ -268,12 +310,11 @@ class ArduPilotSession:
         """External mode: answer a waiting frame with the simulator's new state."""
         if self._awaiting_state and state.t_s > self._last_reply_t_s:
             self._awaiting_state = False
-            self._reply(state)
+            self._send_answer(_answer(state))
 
-    def _reply(self, state: VehicleState) -> None:
-        self._last_reply = state_json_line(state)
-        self._last_reply_t_s = state.t_s
-        self._send(self._last_reply)
+    def _send_answer(self, answer: _Answer) -> None:
+        self._last_reply, self._last_reply_t_s = answer
+        self._send(answer.line)
 
     def _send(self, data: bytes) -> None:
         if self.peer is None:

@@ -191,6 +191,14 @@ PARAMETERS = (
         read_only=True,
     ),
     NodeParameter(
+        "flight_stack_answer_ahead",
+        ArduPilotConfig.answer_ahead,
+        "ArduPilot, the bridge's own physics: answer each frame with the state integrated after the last "
+        "one, and integrate its servos while SITL takes its turn (faster on two cores; one frame of "
+        "actuator delay)",
+        read_only=True,
+    ),
+    NodeParameter(
         "measure_timing",
         False,
         "keep each lockstep frame's answer time and the flight stack's, logged as percentiles at shutdown",
@@ -419,6 +427,7 @@ class MavlinkBridgeNode(Node):
                 stack_port or ARDUPILOT_PORT,
                 measure_timing=p["measure_timing"],
                 busy_wait_s=p["flight_stack_busy_wait_s"],
+                answer_ahead=p["flight_stack_answer_ahead"],
             ),
             ground_station=GroundStationConfig(
                 p["gcs_address"],
@@ -439,6 +448,12 @@ class MavlinkBridgeNode(Node):
             raise ValueError(str(error)) from error
         self._loop = BridgeThread(self.bridge).start()
         mode = "own physics, lockstep" if self.internal else "physics from topics"
+        if stack == "ardupilot" and p["flight_stack_answer_ahead"]:
+            mode += (
+                ", each frame answered ahead (one frame of actuator delay)"
+                if self.internal
+                else "; flight_stack_answer_ahead has no effect (the simulator node steps the physics)"
+            )
         where = (
             f"{p['flight_stack']} on port {self.bridge.flight_stack_port}"
             if self.bridge.flight_stack_port
