@@ -19,7 +19,7 @@ from test_mavlink_gcs import GroundStation
 
 from multirotor_ros.frames import enu_to_ned, quat_enu_flu_to_ned_frd
 from multirotor_ros.mavlink.actuators import RotorChannels
-from multirotor_ros.mavlink.peers import HoverController, Px4LikePeer
+from multirotor_ros.mavlink.peers import ArduPilotLikePeer, HoverController, Px4LikePeer
 from multirotor_ros.mavlink.sensors import Home, LocalTangentPlane
 from multirotor_ros.mavlink.signing import parse_signing_key
 from multirotor_ros.model import state as S
@@ -200,6 +200,27 @@ def test_bad_parameters_stop_the_node_with_a_clear_message(tmp_path, parameters,
     )
     assert process.process.wait(60.0) == 2
     assert message in process.log_text()
+
+
+def test_the_node_answers_ardupilot_ahead_when_asked_and_says_so(tmp_path):
+    port = free_port(socket.SOCK_DGRAM)
+    parameters = {
+        "airframe": "quad_x", "gcs_enabled": False, "flight_stack": "ardupilot", "flight_stack_port": port,
+        "flight_stack_answer_ahead": True,
+    }  # fmt: skip
+    with NodeProcess("mavlink_bridge", tmp_path / "ahead.log", parameters=parameters) as node:
+        assert "each frame answered ahead" in node.wait_for_log("outputs:", 60.0), node.log_text()
+        peer = ArduPilotLikePeer(
+            port, HoverController(RotorChannels(load_airframe("quad_x"))), arm_after_s=0.1
+        )
+        try:
+            record = peer.fly(1.5)
+        finally:
+            peer.close()
+        node.assert_running()
+    stamps = np.array([reply["timestamp"] for reply in record.replies])
+    np.testing.assert_allclose(np.diff(stamps), 1.0 / peer.frame_rate_hz, atol=1e-9)
+    assert -record.replies[-1]["position"][2] > 0.5  # climbing towards the hover height
 
 
 @pytest.mark.slow
