@@ -299,6 +299,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(listen(typed=LISTENER_TYPED[args.role])), flush=True)
         return 0
 
+    answer_modes = args.answers.split(",")
+    if not set(answer_modes) <= {"exact", "ahead"}:
+        parser.error(f"--answers takes exact and/or ahead, got {args.answers!r}")
     runners = {
         "library": run_library,
         "node": run_node,
@@ -310,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     for _ in range(args.rounds):
         for speedup in (float(s) for s in args.speedups.split(",")):
             for via in args.via.split(","):
-                for answers in args.answers.split(","):
+                for answers in answer_modes:
                     with tempfile.TemporaryDirectory(prefix="bench_ardupilot_") as scratch:
                         run = runners[via](
                             args.airframe, speedup, args.rate, Path(scratch), answers == "ahead"
