@@ -27,8 +27,12 @@ start. A subscriber that appears later (a controller started after the mission, 
 setpoint in force and those to come again: a restarted controller has lost its queue, and to the one
 that has not, the same setpoints again change nothing.
 
-Log: one line when the setpoints are sent, one per setpoint reached (within ``reached_distance_m``) or
-replaced by the next before it was reached, one when the mission is done (the last setpoint reached).
+Log: one line when the setpoints are sent (with the odometry's time then), one per setpoint reached
+(within ``reached_distance_m``) or replaced by the next before it was reached, one when the mission is
+done (the last setpoint reached). A warning when the first setpoints could only go out more than
+``LATE_SEND_WARNING_S`` after they were due: nobody subscribed to ``setpoint`` until then (a controller
+started late, or discovery slow on a loaded host), so the flight starts that much later than the mission
+says; in lockstep simulated time does not wait for the mission.
 The node keeps running after that, for a controller that restarts.
 
 A mission file that cannot be flown stops the node at start with one line naming the file and the line
@@ -59,6 +63,9 @@ from multirotor_ros.refusals import Refusal, RefusalCounter
 
 # How often the node looks for a new subscriber of its setpoints (wall time) [s].
 SUBSCRIBER_CHECK_PERIOD_S = 0.25
+# The first setpoints sent this much after they were due (on the odometry's clock) are said to be late [s]:
+# two looks for a subscriber, so that a controller a moment behind the mission in real time is no news.
+LATE_SEND_WARNING_S = 2 * SUBSCRIBER_CHECK_PERIOD_S
 
 PARAMETERS = (
     NodeParameter(
@@ -109,6 +116,7 @@ class MissionNode(Node):
         self.progress: MissionProgress | None = None
         self._newest_ns = -1
         self._subscribers = 0
+        self._sent_once = False
         self._refusals = RefusalCounter(self.get_logger().warning, "odom")
         self._publisher = self.create_publisher(PoseStamped, "setpoint", SETPOINT_QUEUE_LENGTH)
         subscribe(self, Odometry, "odom", self._on_odom, 10)
@@ -165,8 +173,16 @@ class MissionNode(Node):
             f"sent setpoints {setpoints[0].number}..{setpoints[-1].number} of {len(progress.setpoints)} to "
             f"{self._publisher.topic_name} (subscribers: {subscribers}), stamped t = "
             f"{progress.t_s(setpoints[0].stamp_ns):g}..{progress.t_s(setpoints[-1].stamp_ns):g} s of the "
-            f"mission, which started at {progress.start_ns / 1e9:.3f} s on the odometry's clock"
+            f"mission, which started at {progress.start_ns / 1e9:.3f} s on the odometry's clock; sent at "
+            f"{self._newest_ns / 1e9:.3f} s"
         )
+        late_s = (self._newest_ns - setpoints[0].stamp_ns) / 1e9
+        if not self._sent_once and late_s > LATE_SEND_WARNING_S:
+            self.get_logger().warning(
+                f"setpoint {setpoints[0].number} went out {late_s:.3f} s after it was due: nobody subscribed "
+                f"to {self._publisher.topic_name} until then, and the flight starts that much late"
+            )
+        self._sent_once = True
 
 
 def main(args: list[str] | None = None) -> int:
