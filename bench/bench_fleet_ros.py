@@ -1,18 +1,21 @@
 """How many vehicles one simulator node keeps in real time, each flown by its own controller process.
 
     .venv/bin/python bench/bench_fleet_ros.py [--vehicles 1,5,10,15] [--seconds 30]
-        [--controllers composed,separate] [--rate-hz 250] [--no-ceiling]
+        [--controllers composed,bundled,separate] [--rate-hz 250] [--no-ceiling]
 
 For each fleet size V: ``multirotor node simulator`` with ``vehicles`` = uav1..uavV (x8_octorotor, 1 kHz
 physics, real_time_factor 1, publishing /clock and odometry at the control rate, other sensors at their
 rates) and a controller per vehicle (use_sim_time, ``--rate-hz``), every vehicle hovering at 1 m: V
-``multirotor node controller`` processes (``separate``) or one ``multirotor node fleet_controller``
-process holding the V controller nodes (``composed``), each way in turn for each V. After a start-up settle,
-the simulator's own ``pacing`` status over ``--seconds`` of flight gives the achieved real-time factor
-and the share of control periods whose command came in time (stamped at the period's start and in force
-before its end); after it, the probe looks at 100 odometry messages of each vehicle (not during it: its
-own Python would take CPU from the nodes measured). A fleet "keeps real time" when the achieved factor is
->= 0.99, >= 99 % of the periods are on time and every vehicle is then within 5 cm of its height.
+``multirotor node controller`` processes (``separate``) or one ``multirotor node fleet_controller`` process
+holding the V controller nodes, each on its vehicle's topics (``composed``) or all of them on the
+simulator's fleet bundles (``bundled``: ``bundles`` true, nodes/bundle.py), each way in turn for each V.
+After a start-up settle, the simulator's own ``pacing`` status over ``--seconds`` of flight gives the
+achieved real-time factor and the share of control periods whose command came in time (stamped at the
+period's start and in force before its end); after it, the probe looks at 100 odometry messages of each
+vehicle (not during it: its own Python would take CPU from the nodes measured). A fleet "keeps real time"
+when the achieved factor is >= 0.99, >= 99 % of the periods are on time and every vehicle is then within 5
+cm of its height. The CPU columns: the simulator's process and the controllers' (summed) over the
+measured window, in cores (from /proc).
 
 Beside each fleet size, in the same run and before it, the ceiling rclpy sets on this host at that moment
 (``--ceiling``, on by default): the same messages with no physics and no control. A bare plant process
@@ -57,7 +60,7 @@ def pacing_values(message) -> dict[str, float]:  # noqa: ANN001 - diagnostic_msg
     return {kv.key: float(kv.value) for kv in status.values}
 
 
-def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: float) -> dict[str, float]:
+def fly(vehicles: int, seconds: float, logs: Path, way: str, rate_hz: float) -> dict[str, float]:
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from ros_harness import NodeProcess, RosProbe
@@ -66,7 +69,6 @@ def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: floa
     names = [f"uav{k + 1}" for k in range(vehicles)]
     probe = RosProbe()
     pacing = probe.subscribe("/pacing", DiagnosticArray)
-    way = "composed" if composed else "separate"
     simulator = NodeProcess(
         "simulator",
         logs / f"v{vehicles}-{way}-simulator.log",
@@ -83,10 +85,15 @@ def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: floa
             NodeProcess(
                 "fleet_controller",
                 logs / f"v{vehicles}-{way}-fleet_controller.log",
-                parameters={"use_sim_time": True, "rate_hz": rate_hz, "vehicles": names},
+                parameters={
+                    "use_sim_time": True,
+                    "rate_hz": rate_hz,
+                    "vehicles": names,
+                    "bundles": way == "bundled",
+                },
             )
         ]
-        if composed
+        if way != "separate"
         else [
             NodeProcess(
                 "controller",
@@ -100,8 +107,13 @@ def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: floa
     try:
         pacing.wait_for(lambda m: pacing_values(m)["simulated_time_s"] > SETTLE_S, timeout=300.0)
         start, wall_start = next_status(pacing)
+        cpu_start = [process_cpu_s(p) for p in [simulator, *controllers]]
         time.sleep(seconds)
         end, wall_end = next_status(pacing)
+        cpu = [
+            (process_cpu_s(p) - s) / (wall_end - wall_start)
+            for p, s in zip([simulator, *controllers], cpu_start, strict=True)
+        ]
         # Looked at after the window: converting every vehicle's odometry in this process took about half
         # a core at 10 vehicles, which the nodes measured would have lost.
         odom = {name: probe.subscribe(f"/{name}/odom", Odometry, qos=1000) for name in names}
@@ -117,7 +129,13 @@ def fly(vehicles: int, seconds: float, logs: Path, composed: bool, rate_hz: floa
         factor = (end["simulated_time_s"] - start["simulated_time_s"]) / (wall_end - wall_start)
         for process in [simulator, *controllers]:
             process.assert_running()
-        return {"achieved": factor, "on_time": on_time, "height_error_after_m": worst}
+        return {
+            "achieved": factor,
+            "on_time": on_time,
+            "height_error_after_m": worst,
+            "simulator_cpu": cpu[0],
+            "controllers_cpu": sum(cpu[1:]),
+        }
     finally:
         for process in [*controllers, simulator]:
             process.stop(check=False)
@@ -234,6 +252,12 @@ def bare_exchange(vehicles: int, rate_hz: float, seconds: float, logs: Path) -> 
     return on_time / max(on_time + late, 1)
 
 
+def process_cpu_s(process: Any) -> float:
+    """CPU time [s] a node process (ros_harness.NodeProcess) has used so far, from /proc."""
+    fields = Path(f"/proc/{process.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def next_status(pacing) -> tuple[dict[str, float], float]:  # noqa: ANN001 - a Recorder
     """The next pacing status to arrive, and the wall time it arrived at."""
     pacing.clear()
@@ -246,7 +270,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vehicles", default="1,5,10,15", help="fleet sizes, comma-separated")
     parser.add_argument("--seconds", type=float, default=30.0, help="measured flight per fleet size [s]")
     parser.add_argument(
-        "--controllers", default="composed,separate", help="composed (one process), separate (one each)"
+        "--controllers",
+        default="composed,bundled,separate",
+        help="composed (one process), bundled (one process, fleet bundles), separate (one each)",
     )
     parser.add_argument("--rate-hz", type=float, default=250.0, help="control (and odometry) rate [Hz]")
     parser.add_argument(
@@ -268,11 +294,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"control rate {args.rate_hz:g} Hz")
     print(
         f"{'vehicles':>8} {'controllers':>11} {'achieved RTF':>12} {'on time':>8} {'|z - 1| after':>14} "
-        f"{'keeps real time':>16} {'load':>5}"
+        f"{'keeps real time':>16} {'load':>5} {'CPU sim':>8} {'CPU ctrl':>8}"
     )
     ways = args.controllers.split(",")
-    if not set(ways) <= {"composed", "separate"}:
-        parser.error(f"--controllers: composed and/or separate, got {args.controllers!r}")
+    if not set(ways) <= {"composed", "bundled", "separate"}:
+        parser.error(f"--controllers: composed, bundled and/or separate, got {args.controllers!r}")
     for vehicles in (int(v) for v in args.vehicles.split(",")):
         if args.ceiling:
             share = bare_exchange(vehicles, args.rate_hz, args.seconds, logs)
@@ -282,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
         for way in ways:
-            result = fly(vehicles, args.seconds, logs, way == "composed", args.rate_hz)
+            result = fly(vehicles, args.seconds, logs, way, args.rate_hz)
             keeps = (
                 result["achieved"] >= 0.99
                 and result["on_time"] >= 0.99
@@ -291,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{vehicles:8d} {way:>11} {result['achieved']:12.3f} {100 * result['on_time']:7.1f}% "
                 f"{result['height_error_after_m']:13.3f}m {'yes' if keeps else 'no':>16} "
-                f"{os.getloadavg()[0]:5.1f}",
+                f"{os.getloadavg()[0]:5.1f} {100 * result['simulator_cpu']:7.0f}% "
+                f"{100 * result['controllers_cpu']:7.0f}%",
                 flush=True,
             )
     return 0

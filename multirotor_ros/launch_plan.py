@@ -399,9 +399,12 @@ def fleet_plan(values: Mapping[str, str]) -> list[NodePlan]:
     )
     # The controllers in one process, each a node of its own under /NAMESPACE/NAME (fleet_controller.py):
     # a process per controller kept 4 vehicles' control periods on time 79 % of the time on a 2-core
-    # machine, one process 98.5 % (bench/bench_fleet_ros.py).
+    # machine, one process 98.5 % (bench/bench_fleet_ros.py). They exchange the fleet's odometries and
+    # commands with the simulator in bundles (nodes/bundle.py): half the CPU of either process at ten.
     controllers = NodePlan(
-        "fleet_controller", namespace, {"airframe": common.airframe, "vehicles": names, **SIMULATED_TIME}
+        "fleet_controller",
+        namespace,
+        {"airframe": common.airframe, "vehicles": names, "bundles": True, **SIMULATED_TIME},
     )
     mission = _mission_file(values)
     vehicles = [

@@ -1,6 +1,7 @@
 """Several vehicles in one simulator node, one clock, a controller each, over real ROS 2 (issue 10).
 
-The controllers run as a process each or as the nodes of one ``fleet_controller`` process.
+The controllers run as a process each or as the nodes of one ``fleet_controller`` process, on each
+vehicle's topics or on the simulator's fleet bundles (nodes/bundle.py).
 
 The simulator steps every vehicle of its ``vehicles`` list in one batched kernel call and publishes one
 ``/clock``; each vehicle has its own topics and frames under its name, and its own fault parameters.
@@ -13,6 +14,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from ros_harness import NodeProcess, RosProbe
+from std_msgs.msg import UInt8MultiArray
 from test_nodes_sim_control import STARTUP_TIMEOUT_S, setpoint_message
 
 from multirotor_ros.nodes.cdr import odometry_fields_from_cdr
@@ -68,9 +70,17 @@ def test_a_fleet_controller_without_vehicles_or_with_a_bad_one_ends_with_status_
     assert "unknown airframe 'no_such_frame'" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("composed", [False, True], ids=["a-controller-process-each", "one-fleet-controller"])
-def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, composed: bool) -> None:
-    """Three controllers, as three processes or as the nodes of one ``fleet_controller`` process."""
+@pytest.mark.parametrize(
+    "way",
+    ["separate", "composed", "bundled"],
+    ids=["a-controller-process-each", "one-fleet-controller", "one-fleet-controller-on-bundles"],
+)
+def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, way: str) -> None:
+    """Three controllers, as three processes or as the nodes of one ``fleet_controller`` process.
+
+    Bundled, the fleet takes every vehicle's odometry in one message and answers in one; the vehicles'
+    own topics still carry theirs to everyone else (the probe here), and fly the same.
+    """
     probe = RosProbe()
     # Read serialised (nodes/cdr.py) and followed in lockstep: a probe that only listened lost 1.2 % and
     # 11.5 % of a lockstep fleet's states in two clean-clone CI runs, the simulator's bounded history
@@ -101,10 +111,10 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
             NodeProcess(
                 "fleet_controller",
                 tmp_path / "fleet_controller.log",
-                parameters={"use_sim_time": True, "vehicles": list(FLEET)},
+                parameters={"use_sim_time": True, "vehicles": list(FLEET), "bundles": way == "bundled"},
             )
         ]
-        if composed
+        if way != "separate"
         else [
             NodeProcess(
                 "controller",
@@ -139,12 +149,30 @@ def test_three_vehicles_in_one_simulator_fly_with_a_controller_each(tmp_path, co
         assert [s.values[0].value for s in truth.status] == ["1", "1", "0", "1", "1", "1", "1", "1"]
         log = simulator.log_text()
         assert "3 vehicles (uav1, uav2, uav3)" in log and "uav2/rotor 3 effectiveness 0" in log
-        if composed:
+        if way != "separate":
             log = controllers[0].log_text()
             assert "3 controllers: /uav1/controller, /uav2/controller, /uav3/controller" in log, log
             # The same node as a process of its own: its parameters, under its own name.
             (outcome,) = probe.set_parameters("/uav2/controller", {"k_px": -1.0}).values()
             assert not outcome.successful and "k_px" in outcome.reason, outcome.reason
+        if way == "bundled":
+            assert "in bundles on /fleet/odom and /fleet/motor_speed_cmd" in log, log
+            # The vehicles' own command topics carried nothing: every command went in the bundles.
+            for name in FLEET:
+                assert not probe.node.get_publishers_info_by_topic(f"/{name}/motor_speed_cmd"), name
+            assert "refused" not in simulator.log_text()
+            # A careless user's bundles: refused with the reason, counted, and both nodes fly on.
+            for topic in ("/fleet/motor_speed_cmd", "/fleet/odom"):
+                garbage = probe.publisher(topic, UInt8MultiArray)
+                probe.wait_for_subscribers(garbage, timeout=STARTUP_TIMEOUT_S)
+                garbage.publish(UInt8MultiArray(data=b"\x05\x00"))
+            said = "malformed bundle: 2 bytes left at byte 0, no whole entry"
+            simulator.wait_for_log(f"refused fleet/motor_speed_cmd: {said}", STARTUP_TIMEOUT_S)
+            controllers[0].wait_for_log(f"refused fleet/odom: {said}", STARTUP_TIMEOUT_S)
+            newest = odom["uav1"].messages[-1].stamp_ns
+            odom["uav1"].wait_for(lambda m: m.stamp_ns > newest + NS_PER_S, timeout=60.0)
+            for process in [*controllers, simulator]:
+                process.assert_running()
     finally:
         for process in [*controllers, simulator]:
             process.stop()

@@ -69,7 +69,10 @@ def _declared(plan: NodePlan) -> dict[str, NodeParameter]:
     elif plan.executable == "fleet_controller":
         # Its vehicles, and what a launch's parameters give every node of the process: each controller's.
         rows = controller_parameters(airframe_gains(airframe).as_dict()) + [AIRFRAME_ROW]
-        rows += [NodeParameter("vehicles", "", "checked by parse_vehicles")]
+        rows += [
+            NodeParameter("vehicles", "", "checked by parse_vehicles"),
+            NodeParameter("bundles", False, ""),
+        ]
     elif plan.executable == "identifier":
         rows = identifier_parameters()
     elif plan.executable == "mavlink_bridge":
@@ -216,6 +219,7 @@ def test_a_fleet_is_one_simulator_and_each_vehicles_nodes_in_its_namespace() -> 
     assert controllers.namespace == "/"
     assert controllers.parameters["vehicles"] == ["uav1", "uav2", "uav3"]
     assert controllers.parameters["use_sim_time"] is True
+    assert controllers.parameters["bundles"] is True  # with the simulator's fleet bundles (nodes/bundle.py)
     assert not _by_executable(nodes, "controller")
     for k in (1, 2, 3):
         namespace = f"/uav{k}"

@@ -61,7 +61,7 @@ def _listening(context: Context, topic: str, publisher_node: ControllerNode) -> 
 def _fly_one_period(node: ControllerNode) -> None:
     """The clock at 0, then the state of the first tick: the controller computes that tick at once."""
     node.time.heard(Clock(clock=stamp_from_ns(0)))
-    node._on_odom(_odometry(HOVER, PERIOD_NS))
+    node.on_odometry(_odometry(HOVER, PERIOD_NS))
 
 
 def test_the_command_on_the_wire_is_the_laws_output_as_rclpy_reads_it(rclpy_context: Context) -> None:

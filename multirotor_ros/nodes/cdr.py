@@ -120,12 +120,21 @@ class OdometryWriter:
         self._pose_offset = frames[3]
         self._twist_offset = self._pose_offset + _POSE.size + _COVARIANCE_BYTES
 
+    @property
+    def serialised(self) -> bytes:
+        """The message last written (the template before any): its length and layout are every one's."""
+        return bytes(self._data)
+
     def write(self, stamp: Any, values: tuple[float, ...]) -> bytes:
         """The template stamped ``stamp`` (builtin_interfaces/Time) with the 13 values of odometry_values."""
-        _STAMP.pack_into(self._data, _ENCAPSULATION_BYTES, stamp.sec, stamp.nanosec)
-        _POSE.pack_into(self._data, self._pose_offset, *values[:7])
-        _TWIST.pack_into(self._data, self._twist_offset, *values[7:])
+        self.write_into(self._data, 0, stamp, values)
         return bytes(self._data)
+
+    def write_into(self, buffer: bytearray, start: int, stamp: Any, values: tuple[float, ...]) -> None:
+        """:meth:`write` into a copy of :attr:`serialised` that begins at ``start`` of ``buffer``."""
+        _STAMP.pack_into(buffer, start + _ENCAPSULATION_BYTES, stamp.sec, stamp.nanosec)
+        _POSE.pack_into(buffer, start + self._pose_offset, *values[:7])
+        _TWIST.pack_into(buffer, start + self._twist_offset, *values[7:])
 
 
 class RotorCommandWriter:

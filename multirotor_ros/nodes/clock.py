@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 
 from rclpy.clock import Clock, ClockType, ROSClock
 from rclpy.node import Node
@@ -178,8 +179,15 @@ class SharedClock:
     constructor, just before the spin. ``times``: the nodes' times, told in their order.
     """
 
-    def __init__(self, node: Node, times: list[NodeTime]):
+    def __init__(
+        self,
+        node: Node,
+        times: list[NodeTime],
+        around: Callable[[], AbstractContextManager[None]] = nullcontext,
+    ):
+        """``around``: what the telling of each clock runs inside (a fleet gathers its commands so)."""
         self.times = times
+        self._around = around
         self._ros_clock = ros_clock_without_time_source(node)
         subscription = subscriptions.subscribe(node, ClockMessage, GRAPH_CLOCK_TOPIC, self._heard, CLOCK_QOS)
         for node_time in times:
@@ -189,8 +197,9 @@ class SharedClock:
         now_ns = stamp_to_ns(message.clock)
         now = Time(nanoseconds=now_ns, clock_type=ClockType.ROS_TIME)
         self._ros_clock.set_ros_time_override(now)
-        for node_time in self.times:
-            node_time.hear(now_ns, now)
+        with self._around():
+            for node_time in self.times:
+                node_time.hear(now_ns, now)
 
 
 def ros_clock_without_time_source(node: Node) -> ROSClock:

@@ -99,6 +99,7 @@ is counted per reason, logged once per reason, then summarised (refusals.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -106,6 +107,7 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
@@ -230,8 +232,19 @@ class ControllerNode(Node):
     # Reads /clock itself (module docstring): it may spin on the EventsExecutor (entry.make_executor).
     KEEPS_ITS_OWN_SIMULATED_TIME = True
 
-    def __init__(self, *, clock_subscription: bool = True, **kwargs: Any):
-        """``clock_subscription`` false: the process's SharedClock (nodes/clock.py) tells ``time`` instead."""
+    def __init__(
+        self,
+        *,
+        clock_subscription: bool = True,
+        bundled: Callable[[bytes], None] | None = None,
+        **kwargs: Any,
+    ):
+        """``clock_subscription`` false: the process's SharedClock (nodes/clock.py) tells ``time`` instead.
+
+        ``bundled``: the node is one of a fleet's (nodes/fleet_controller.py) that exchanges bundles: it
+        neither subscribes to ``odom`` nor publishes ``motor_speed_cmd``; its fleet hands it each
+        odometry (:meth:`on_odometry`) and ``bundled`` takes each serialised command.
+        """
         super().__init__("controller", **kwargs)
         name = self.declare_parameter(
             "airframe",
@@ -276,10 +289,16 @@ class ControllerNode(Node):
         self._reset_fence = ResetFence(self._odometry_check.gate.future_tolerance_s)
         self._future_tolerance_ns = round(self._odometry_check.gate.future_tolerance_s * NS_PER_S)
 
-        self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
-        # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
-        # Serialised: read by nodes/cdr.py in a fraction of what rclpy's Odometry object costs.
-        subscribe(self, Odometry, "odom", self._on_odom, 1, raw=True)
+        self._command_pub: Publisher | None = None
+        self._send_command: Callable[[bytes], None]
+        if bundled is None:
+            self._command_pub = self.create_publisher(JointState, "motor_speed_cmd", 10)
+            self._send_command = self._command_pub.publish
+            # Depth 1: the law wants the newest state; a backlog would fly a starved controller on old ones.
+            # Serialised: read by nodes/cdr.py in a fraction of what rclpy's Odometry object costs.
+            subscribe(self, Odometry, "odom", self.on_odometry, 1, raw=True)
+        else:
+            self._send_command = bundled
         # As deep as the schedule: a mission sent at once must not lose its first setpoints to its last.
         subscribe(self, PoseStamped, "setpoint", self._on_setpoint, SETPOINT_QUEUE_LENGTH)
         subscribe(self, Float64MultiArray, "rotor_effectiveness", self._on_effectiveness, 10)
@@ -302,7 +321,8 @@ class ControllerNode(Node):
             f"{self.airframe.name}: seed 1 saturation law at {self.law.gains.rate_hz:g} Hz"
         )
 
-    def _on_odom(self, data: bytes) -> None:
+    def on_odometry(self, data: bytes) -> None:
+        """A serialised Odometry of this vehicle (its ``odom`` topic, or its fleet's bundle)."""
         if not self.time.running:
             # No time yet to judge its stamp by; a lockstep simulator resends the state it waits at.
             return
@@ -331,7 +351,7 @@ class ControllerNode(Node):
                 self._clock_ticks.clock(stamp_ns)
                 self._tick(stamp_ns)
             elif resent and self._last_command is not None and self._last_command[0] == stamp_ns:
-                self._command_pub.publish(self._last_command[1])
+                self._send_command(self._last_command[1])
 
     def _state_of_next_tick(self, stamp_ns: int) -> bool:
         """Whether a state is stamped at the next tick, with the clock heard at most one period before it.
@@ -467,9 +487,9 @@ class ControllerNode(Node):
             )
             self.law.reset()
             return
-        # Serialised here (nodes/cdr.py); kept: a lost command is sent again from it (_on_odom).
+        # Serialised here (nodes/cdr.py); kept: a lost command is sent again from it (on_odometry).
         self._last_command = (now_ns, self._command_writer.write(now_ns, speeds))
-        self._command_pub.publish(self._last_command[1])
+        self._send_command(self._last_command[1])
 
     def _reset(self, cause: str, reset_stamp_ns: int | None) -> str:
         """Start over (module docstring); one line saying what was dropped."""

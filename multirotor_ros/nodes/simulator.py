@@ -21,6 +21,13 @@ odom and the clock, and a publish nobody hears still costs its conversion and th
 bookkeeping. Their noise is drawn all the same, so who listens never changes a flight. What lockstep
 resends is built from the newest reading even if nobody heard it when it was new.
 
+Fleet bundles (nodes/bundle.py), with a ``vehicles`` list: ``fleet/odom`` (std_msgs/UInt8MultiArray,
+reliable, depth 1) carries every vehicle's odom of one instant, serialised as on its own topic, published
+after the last one's and before the clock, while somebody listens; ``fleet/motor_speed_cmd`` takes
+commands the same way, each checked and applied as if it came on its vehicle's ``motor_speed_cmd``. A
+``fleet_controller`` with ``bundles`` on uses them: two messages a control period for the whole fleet
+instead of two per vehicle. A bundle that breaks the layout is refused whole, with the reason.
+
 Frames and tf (REP-105): ``frame_prefix`` + ``odom`` / ``base_link`` (+ the vehicle's name in a fleet);
 the launch files set the prefix from the namespace (``uav1/``) so that vehicles' frames do not collide.
 ``/tf`` and ``/tf_static`` are absolute, as tf2 listeners and RViz expect, with tf2's QoS; ``publish_tf``
@@ -61,8 +68,12 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
 - ``real_time_factor`` r > 0: r x wall time. A control period is late when the command computed for it
   (stamped at its start) is not in force before the physics passes its end; the achieved real-time factor
   and late periods are published every second on ``pacing`` and a throttled warning says when the host
-  cannot keep up. Without ``publish_clock`` (only at r = 1) stamps follow the wall clock: when the physics
-  falls behind, the stamps jump forward with the wall clock rather than drifting behind it.
+  cannot keep up. A period whose commands have all come (every vehicle's, stamped at its start) is
+  integrated at once, as lockstep does, and its readings are published when their time comes: the
+  physics is the same, and the next state goes out without the physics of a period before it. As in
+  lockstep, the first command of a ``control_period_s`` flies the whole of it. Without ``publish_clock``
+  (only at r = 1) stamps follow the wall clock: when the physics falls behind, the stamps jump forward
+  with the wall clock rather than drifting behind it.
 - Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
   node's namespace: a graph has one time. A simulator that hears another clock in its first
   ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers; while
@@ -113,6 +124,13 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from multirotor_ros.model.airframe import load_airframe
+from multirotor_ros.nodes.bundle import (
+    BUNDLE_TYPE,
+    FLEET_COMMAND_TOPIC,
+    FLEET_ODOM_TOPIC,
+    OdometryBundleWriter,
+    bundle_entries,
+)
 from multirotor_ros.nodes.cdr import OdometryWriter, joint_state_fields_from_cdr
 from multirotor_ros.nodes.clock import CLOCK_QOS, GRAPH_CLOCK_TOPIC, ClockClaim, steady_clock
 from multirotor_ros.nodes.entry import run_node
@@ -508,6 +526,7 @@ class SimulatorNode(Node):
             else None
         )
         self._pacer = RealTimePacer(rate) if rate > 0 else None
+        self._ahead: list[Reading] = []  # readings of physics run ahead of their publishing (_run_ahead)
         self._timing = [ControlTiming(control_period_ns or self.publish_period_ns) for _ in vehicles]
         self._achieved = AchievedRate(time.monotonic(), 0)
         self._periods_at_status = (0, 0)  # (on time, late) of all vehicles at the last status
@@ -530,6 +549,13 @@ class SimulatorNode(Node):
         )
         self.create_service(Trigger, RESET_SERVICE, self._on_reset)
         self._pacing_pub = self.create_publisher(DiagnosticArray, "pacing", 10)
+        # A fleet's bundles (nodes/bundle.py): every vehicle's odom in one message, commands likewise.
+        self._fleet_odom: StateTopic | None = None
+        if specs_of_vehicles:
+            self._fleet_odom = StateTopic(self.create_publisher(BUNDLE_TYPE, FLEET_ODOM_TOPIC, 1))
+            self._fleet_writer = OdometryBundleWriter([vehicle.odometry_writer for vehicle in self.vehicles])
+            self._fleet_refusals = RefusalCounter(self.get_logger().warning, FLEET_COMMAND_TOPIC)
+            subscribe(self, BUNDLE_TYPE, FLEET_COMMAND_TOPIC, self._on_fleet_command, 10, raw=True)
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -688,6 +714,17 @@ class SimulatorNode(Node):
         if self._lockstep is not None and self._started:
             self._lockstep.command(stamp_ns, vehicle.index)
             self._run_to(self._lockstep.limit_ns())
+        elif self._pacer is not None and self._started:
+            self._run_ahead()
+
+    def _on_fleet_command(self, data: bytes) -> None:
+        """A bundle of commands (nodes/bundle.py): each taken as if on its vehicle's motor_speed_cmd."""
+        entries = bundle_entries(data, len(self.vehicles))
+        if isinstance(entries, Refusal):
+            self._fleet_refusals.refuse(entries.reason, entries.detail)
+            return
+        for index, command in entries:
+            self.on_command(self.vehicles[index], command)
 
     def _check_parameters(self, parameters: list[Any]) -> SetParametersResult:
         result = check_parameters(self._specs, parameters)
@@ -727,6 +764,10 @@ class SimulatorNode(Node):
 
         Each vehicle's ``simulation_reset`` tells its controller and identifier to start over too.
         """
+        # The old vehicles' states integrated ahead go out first, a period early at most: after the reset's
+        # they would be out of order.
+        self._publish(self._ahead)
+        self._ahead = []
         self.sim.reset()
         stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
         for vehicle in self.vehicles:
@@ -735,6 +776,7 @@ class SimulatorNode(Node):
             # The state it starts over from, at once: a lockstep controller computes its next command on it
             # (and the simulator resends it while it waits, whichever of the two topics arrives first).
             self._publish_odometry(vehicle, self.sim.x[vehicle.index].copy(), stamp)
+        self._publish_fleet_odometry(stamp, list(self.sim.x.copy()))
         response.success = True
         response.message = f"reset at t = {self.sim.t_s:.3f} s: vehicles at their initial state"
         self.get_logger().info(response.message)
@@ -778,12 +820,41 @@ class SimulatorNode(Node):
                 self._run_to(self.sim.t_ns + self.publish_period_ns)
 
     def _run_to(self, t_ns: int) -> None:
-        if t_ns > self.sim.t_ns:
-            self._publish(self.sim.run_until(t_ns))
-            for timing in self._timing:
-                timing.physics_at(self.sim.t_ns)
+        self._integrate_to(t_ns)
+        if self._pacer is None:
+            readings, self._ahead = self._ahead, []
+        else:
+            # What was integrated ahead of real time waits for its time: the physics step that reaches t_ns
+            # (run_until's whole steps), as if integrated only now.
+            reached_ns = -(-t_ns // self.sim.dt_ns) * self.sim.dt_ns
+            readings = [reading for reading in self._ahead if reading.t_ns <= reached_ns]
+            self._ahead = self._ahead[len(readings) :]
+        self._publish(readings)
         if self._lockstep is not None:
             self._lockstep.reached(self.sim.t_ns, time.monotonic())
+
+    def _integrate_to(self, t_ns: int) -> None:
+        """The physics up to ``t_ns``; its readings wait in ``_ahead`` until published."""
+        if t_ns > self.sim.t_ns:
+            self._ahead += self.sim.run_until(t_ns)
+            for timing in self._timing:
+                timing.physics_at(self.sim.t_ns)
+
+    def _run_ahead(self) -> None:
+        """In real time, the control period whose commands are all in: integrated now, published on time.
+
+        The physics of a period is the same whenever it is computed, once its commands are in force; run
+        at their arrival it is off the path of the next state's publishing, which then goes out as its
+        time comes, leaving the controllers more of the period to answer in. Never more than one publish
+        period ahead of the wall clock, never past what the commands in hand cover.
+        """
+        assert self._pacer is not None
+        newest = [timing.newest_command_ns for timing in self._timing]
+        now_ns = self._pacer.now_ns(time.monotonic_ns())
+        if now_ns is None or any(stamp_ns is None for stamp_ns in newest):
+            return
+        covered_ns = min(stamp_ns for stamp_ns in newest if stamp_ns is not None) + self._timing[0].period_ns
+        self._integrate_to(min(covered_ns, now_ns + self.publish_period_ns))
 
     def _watch_lockstep(self) -> None:
         """Resend the state while simulated time waits; say when a controller is missing or went silent."""
@@ -841,15 +912,19 @@ class SimulatorNode(Node):
     # ------------------------------------------------------------------ outputs
 
     def _publish(self, readings: list[Reading]) -> None:
+        odometries: list[Any] = []  # the vehicles' states of the instant whose odom is being published
         for reading in readings:
             vehicle = self.vehicles[reading.vehicle]
             stamp = stamp_from_ns(reading.t_ns + self._stamp_offset_ns)
             kind, data = reading.kind, reading.data
             if kind == "odom":
                 self._publish_odometry(vehicle, data, stamp)
-                # One clock for all vehicles: after the last one's state of this time.
-                if self._clock_listeners is not None and reading.vehicle == len(self.vehicles) - 1:
-                    if self._clock_listeners.heard():
+                odometries.append(data)
+                # The bundle and one clock for all vehicles: after the last one's state of this time.
+                if reading.vehicle == len(self.vehicles) - 1:
+                    self._publish_fleet_odometry(stamp, odometries)
+                    odometries = []
+                    if self._clock_listeners is not None and self._clock_listeners.heard():
                         self._clock_listeners.publisher.publish(Clock(clock=stamp))
             elif kind == "imu":
                 vehicle.topics["imu"].send(
@@ -881,6 +956,11 @@ class SimulatorNode(Node):
             odometry = self._odometry_message(vehicle, state, stamp)
             self._tf_listeners.publisher.publish(TFMessage(transforms=[transform_from_odometry(odometry)]))
 
+    def _publish_fleet_odometry(self, stamp: Any, states: list[Any]) -> None:
+        """Every vehicle's odom of one instant in one bundle (``states``: not changed later)."""
+        if self._fleet_odom is not None:
+            self._fleet_odom.send(partial(self._fleet_writer.write, stamp, states))
+
     def _serialised_odometry(self, vehicle: _VehicleTopics, state: Any, stamp: Any) -> bytes:
         # Published as it is: rclpy's conversion and serialisation of an Odometry cost more than the rest
         # of a state's publishing (nodes/cdr.py).
@@ -900,6 +980,8 @@ class SimulatorNode(Node):
         for vehicle in self.vehicles:
             for topic in vehicle.topics.values():
                 topic.resend()
+        if self._fleet_odom is not None:
+            self._fleet_odom.resend()
         if self._clock_pub is not None:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.sim.t_ns)))
 

@@ -50,6 +50,13 @@ class RealTimePacer:
         """Start (or restart) pacing: ``sim_ns`` corresponds to ``wall_ns``."""
         self._anchor = (wall_ns, sim_ns)
 
+    def now_ns(self, wall_ns: int) -> int | None:
+        """Simulated time [ns] that ``wall_ns`` stands for, without re-anchoring; None before the start."""
+        if self._anchor is None:
+            return None
+        wall0, sim0 = self._anchor
+        return sim0 + round((wall_ns - wall0) * self.real_time_factor)
+
     def target(self, wall_ns: int, sim_ns: int) -> int:
         """Simulated time [ns] to reach now; re-anchors (and counts) when ``sim_ns`` lags too far behind."""
         if self._anchor is None:
