@@ -60,8 +60,9 @@ def _cpu_s(pid: int | None = None) -> float:
     if pid is None:
         usage = resource.getrusage(resource.RUSAGE_SELF)
         return usage.ru_utime + usage.ru_stime
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    from bench_closed_loop import cpu_s
+
+    return cpu_s(pid)
 
 
 def _sitl(workdir: Path, port: int, airframe_name: str, speedup: float, rate_hz: int):

@@ -61,6 +61,7 @@ def pacing_values(message) -> dict[str, float]:  # noqa: ANN001 - diagnostic_msg
 
 
 def fly(vehicles: int, seconds: float, logs: Path, way: str, rate_hz: float) -> dict[str, float]:
+    from bench_closed_loop import cpu_s
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from ros_harness import NodeProcess, RosProbe
@@ -107,11 +108,11 @@ def fly(vehicles: int, seconds: float, logs: Path, way: str, rate_hz: float) -> 
     try:
         pacing.wait_for(lambda m: pacing_values(m)["simulated_time_s"] > SETTLE_S, timeout=300.0)
         start, wall_start = next_status(pacing)
-        cpu_start = [process_cpu_s(p) for p in [simulator, *controllers]]
+        cpu_start = [cpu_s(p.process.pid) for p in [simulator, *controllers]]
         time.sleep(seconds)
         end, wall_end = next_status(pacing)
         cpu = [
-            (process_cpu_s(p) - s) / (wall_end - wall_start)
+            (cpu_s(p.process.pid) - s) / (wall_end - wall_start)
             for p, s in zip([simulator, *controllers], cpu_start, strict=True)
         ]
         # Looked at after the window: converting every vehicle's odometry in this process took about half
@@ -250,12 +251,6 @@ def bare_exchange(vehicles: int, rate_hz: float, seconds: float, logs: Path) -> 
         return math.nan
     on_time, late = int(reported["ON_TIME"]), int(reported["LATE"])
     return on_time / max(on_time + late, 1)
-
-
-def process_cpu_s(process: Any) -> float:
-    """CPU time [s] a node process (ros_harness.NodeProcess) has used so far, from /proc."""
-    fields = Path(f"/proc/{process.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def next_status(pacing) -> tuple[dict[str, float], float]:  # noqa: ANN001 - a Recorder

@@ -770,13 +770,14 @@ class SimulatorNode(Node):
         self._ahead = []
         self.sim.reset()
         stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
+        states = list(self.sim.x.copy())  # each vehicle's, for its odom and the fleet's bundle
         for vehicle in self.vehicles:
             vehicle.crashed.publish(Bool(data=False))
             vehicle.resets.publish(Header(stamp=stamp, frame_id=vehicle.frames[0]))
             # The state it starts over from, at once: a lockstep controller computes its next command on it
             # (and the simulator resends it while it waits, whichever of the two topics arrives first).
-            self._publish_odometry(vehicle, self.sim.x[vehicle.index].copy(), stamp)
-        self._publish_fleet_odometry(stamp, list(self.sim.x.copy()))
+            self._publish_odometry(vehicle, states[vehicle.index], stamp)
+        self._publish_fleet_odometry(stamp, states)
         response.success = True
         response.message = f"reset at t = {self.sim.t_s:.3f} s: vehicles at their initial state"
         self.get_logger().info(response.message)
