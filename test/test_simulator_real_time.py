@@ -1,4 +1,4 @@
-"""The simulator in real time integrates a period as soon as its commands are in, and publishes on time.
+"""The simulator in real time integrates a period as soon as its commands are in and publishes it, early.
 
 A real simulator node in this process, its wall clock replaced by one the test moves: what matters is
 which readings go out at which wall time, and that the physics is that of the commands in force.
@@ -30,7 +30,7 @@ def test_the_pacer_tells_the_simulated_time_of_a_wall_time_without_re_anchoring(
     assert pacer.fell_behind == 0 and pacer.now_ns(1_000) == 5 * MS
 
 
-def test_a_period_whose_command_is_in_is_integrated_at_once_and_its_state_published_at_its_time(
+def test_a_period_whose_command_is_in_is_integrated_and_published_at_once_up_to_a_period_early(
     rclpy_context: Context, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     wall_ns = [10**15]
@@ -56,7 +56,7 @@ def test_a_period_whose_command_is_in_is_integrated_at_once_and_its_state_publis
         node._on_timer()  # anchors real time at the state of t = 0
         assert node.sim.t_ns == 0 and ("odom", 0) in published
         wall_ns[0] += PERIOD_NS
-        node._on_timer()  # the state of the first tick, 4 ms
+        node._on_timer()  # the state of the first tick, 4 ms: no command yet, nothing runs ahead
         assert node.sim.t_ns == PERIOD_NS and ("odom", PERIOD_NS) in published
         n = node.airframe.n_rotors
         hover = np.full(n, 0.9 * node.airframe.rotor_speed_max_rad_s)
@@ -64,24 +64,28 @@ def test_a_period_whose_command_is_in_is_integrated_at_once_and_its_state_publis
         wall_ns[0] += 2 * MS  # the controller answers 2 ms after the state
         node.on_command(node.vehicles[0], RotorCommandWriter(n).write(PERIOD_NS, hover.tolist()))
         assert node.sim.t_ns == 2 * PERIOD_NS  # the period it covers, integrated at once
-        assert ("odom", 2 * PERIOD_NS) not in published  # but not published ahead of its time
+        assert ("odom", 2 * PERIOD_NS) in published  # and its state out, 2 ms before its wall time
         assert node._timing[0].on_time == 1 and node._timing[0].late == 0
         x_ahead = node.sim.x.copy()
 
-        wall_ns[0] += 1 * MS  # 7 ms: the physics step that reaches it ends at 7 ms
+        # The next command at 6.5 ms covers up to 12 ms, but the physics stays within a publish period
+        # of the wall clock (whole steps: up to 11 ms); the tick at 8 ms takes it to 12 ms, a period early.
+        wall_ns[0] += MS // 2
+        node.on_command(node.vehicles[0], RotorCommandWriter(n).write(2 * PERIOD_NS, hover.tolist()))
+        assert node.sim.t_ns == 11 * MS and ("odom", 3 * PERIOD_NS) not in published
+        wall_ns[0] += 3 * MS // 2
         node._on_timer()
-        assert ("odom", 2 * PERIOD_NS) not in published
-        wall_ns[0] += 1  # just past 7 ms: that step ends at 8 ms, as run_until would have integrated it
-        node._on_timer()
-        assert ("odom", 2 * PERIOD_NS) in published and node.sim.t_ns == 2 * PERIOD_NS
+        assert node.sim.t_ns == 3 * PERIOD_NS and ("odom", 3 * PERIOD_NS) in published
 
-        # The same command again covers nothing new: nothing runs ahead, and the tick past the next
-        # period's end finds that period late.
-        node.on_command(node.vehicles[0], RotorCommandWriter(n).write(PERIOD_NS, hover.tolist()))
-        assert node.sim.t_ns == 2 * PERIOD_NS
+        # No command for the period from 12 ms: nothing runs ahead, and the tick past its end (16 ms of
+        # wall time) finds it late.
         wall_ns[0] += PERIOD_NS
         node._on_timer()
-        assert node.sim.t_ns == 3 * PERIOD_NS and node._timing[0].late == 1
+        assert node.sim.t_ns == 3 * PERIOD_NS and node._timing[0].late == 0
+        wall_ns[0] += PERIOD_NS
+        node._on_timer()
+        assert node.sim.t_ns == 4 * PERIOD_NS and node._timing[0].late == 1
+        assert node._timing[0].on_time == 2
     finally:
         node.destroy_node()
 

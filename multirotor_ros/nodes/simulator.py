@@ -69,11 +69,14 @@ Pacing (simulation/pacing.py), the clock and stamps (issue 10):
   (stamped at its start) is not in force before the physics passes its end; the achieved real-time factor
   and late periods are published every second on ``pacing`` and a throttled warning says when the host
   cannot keep up. A period whose commands have all come (every vehicle's, stamped at its start) is
-  integrated at once, as lockstep does, and its readings are published when their time comes: the
-  physics is the same, and the next state goes out without the physics of a period before it. As in
-  lockstep, the first command of a ``control_period_s`` flies the whole of it. Without ``publish_clock``
-  (only at r = 1) stamps follow the wall clock: when the physics falls behind, the stamps jump forward
-  with the wall clock rather than drifting behind it.
+  integrated at once, as lockstep does, and its readings are published at once, up to one publish period
+  (and a physics step) before their wall time, with the clock of their instant: the physics is the same,
+  and a controller that answers quickly gets the next state early and has the rest of that period and
+  all of the next to answer it, not only what is left of one period after the state's way to it. With
+  no command in hand the physics follows the wall clock. As in lockstep, the first command of a
+  ``control_period_s`` flies the whole of it. Without ``publish_clock`` (only at r = 1) stamps follow
+  the wall clock, up to that period ahead: when the physics falls behind, the stamps jump forward with
+  the wall clock rather than drifting behind it.
 - Stamps are simulated time when ``publish_clock`` is set. The clock goes on ``/clock`` whatever the
   node's namespace: a graph has one time. A simulator that hears another clock in its first
   ``CLOCK_CHECK_S`` refuses to run (status 2) before publishing anything, naming the publishers; while
@@ -526,7 +529,6 @@ class SimulatorNode(Node):
             else None
         )
         self._pacer = RealTimePacer(rate) if rate > 0 else None
-        self._ahead: list[Reading] = []  # readings of physics run ahead of their publishing (_run_ahead)
         self._timing = [ControlTiming(control_period_ns or self.publish_period_ns) for _ in vehicles]
         self._achieved = AchievedRate(time.monotonic(), 0)
         self._periods_at_status = (0, 0)  # (on time, late) of all vehicles at the last status
@@ -689,6 +691,24 @@ class SimulatorNode(Node):
 
         Taken serialised and read by nodes/cdr.py (rclpy's JointState object costs more than the rest).
         """
+        if self._take_command(vehicle, data):
+            self._move_on()
+
+    def _on_fleet_command(self, data: bytes) -> None:
+        """A bundle of commands (nodes/bundle.py): each taken as if on its vehicle's motor_speed_cmd.
+
+        Simulated time moves on once, with all of them in force.
+        """
+        entries = bundle_entries(data, len(self.vehicles))
+        if isinstance(entries, Refusal):
+            self._fleet_refusals.refuse(entries.reason, entries.detail)
+            return
+        taken = [self._take_command(self.vehicles[index], command) for index, command in entries]
+        if any(taken):
+            self._move_on()
+
+    def _take_command(self, vehicle: _VehicleTopics, data: bytes) -> bool:
+        """A serialised command checked and applied; True if it was stamped (it may move time on)."""
         command = joint_state_fields_from_cdr(data)
         result = (
             command
@@ -701,30 +721,26 @@ class SimulatorNode(Node):
             result = vehicle.command_gate.check(result.stamp_ns, self._now_ns(), "motor_speed_cmd") or result
         if isinstance(result, Refusal):
             vehicle.refusals.refuse(result.reason, result.detail)
-            return
+            return False
         self.sim.set_command(result.speeds_rad_s, vehicle=vehicle.index)
         if not result.stamp_ns:
             vehicle.unstamped_commands += 1
             self.get_logger().info(
                 "motor_speed_cmd without a stamp: taken as of now (unstamped commands are counted)", once=True
             )
-            return
+            return False
         stamp_ns = result.stamp_ns - self._stamp_offset_ns
         self._timing[vehicle.index].command(stamp_ns)
         if self._lockstep is not None and self._started:
             self._lockstep.command(stamp_ns, vehicle.index)
+        return True
+
+    def _move_on(self) -> None:
+        """After stamped commands: lockstep runs as far as they allow, real time what they cover (ahead)."""
+        if self._lockstep is not None and self._started:
             self._run_to(self._lockstep.limit_ns())
         elif self._pacer is not None and self._started:
             self._run_ahead()
-
-    def _on_fleet_command(self, data: bytes) -> None:
-        """A bundle of commands (nodes/bundle.py): each taken as if on its vehicle's motor_speed_cmd."""
-        entries = bundle_entries(data, len(self.vehicles))
-        if isinstance(entries, Refusal):
-            self._fleet_refusals.refuse(entries.reason, entries.detail)
-            return
-        for index, command in entries:
-            self.on_command(self.vehicles[index], command)
 
     def _check_parameters(self, parameters: list[Any]) -> SetParametersResult:
         result = check_parameters(self._specs, parameters)
@@ -764,10 +780,6 @@ class SimulatorNode(Node):
 
         Each vehicle's ``simulation_reset`` tells its controller and identifier to start over too.
         """
-        # The old vehicles' states integrated ahead go out first, a period early at most: after the reset's
-        # they would be out of order.
-        self._publish(self._ahead)
-        self._ahead = []
         self.sim.reset()
         stamp = stamp_from_ns(self.sim.t_ns + self._stamp_offset_ns)
         states = list(self.sim.x.copy())  # each vehicle's, for its odom and the fleet's bundle
@@ -813,6 +825,7 @@ class SimulatorNode(Node):
                 # The simulation slows down; the stamps stay on the wall clock (a gap, not a drift).
                 self._stamp_offset_ns = self.get_clock().now().nanoseconds - target
             self._run_to(target)
+            self._run_ahead()
         else:
             # As fast as possible: several publish periods per tick (each executor round costs about as
             # much as a period of physics), then back to the executor for commands and parameters.
@@ -821,33 +834,23 @@ class SimulatorNode(Node):
                 self._run_to(self.sim.t_ns + self.publish_period_ns)
 
     def _run_to(self, t_ns: int) -> None:
-        self._integrate_to(t_ns)
-        if self._pacer is None:
-            readings, self._ahead = self._ahead, []
-        else:
-            # What was integrated ahead of real time waits for its time: the physics step that reaches t_ns
-            # (run_until's whole steps), as if integrated only now.
-            reached_ns = -(-t_ns // self.sim.dt_ns) * self.sim.dt_ns
-            readings = [reading for reading in self._ahead if reading.t_ns <= reached_ns]
-            self._ahead = self._ahead[len(readings) :]
-        self._publish(readings)
+        """The physics up to ``t_ns`` (whole steps, at least up to it); its readings published at once."""
+        if t_ns > self.sim.t_ns:
+            readings = self.sim.run_until(t_ns)
+            for timing in self._timing:
+                timing.physics_at(self.sim.t_ns)
+            self._publish(readings)
         if self._lockstep is not None:
             self._lockstep.reached(self.sim.t_ns, time.monotonic())
 
-    def _integrate_to(self, t_ns: int) -> None:
-        """The physics up to ``t_ns``; its readings wait in ``_ahead`` until published."""
-        if t_ns > self.sim.t_ns:
-            self._ahead += self.sim.run_until(t_ns)
-            for timing in self._timing:
-                timing.physics_at(self.sim.t_ns)
-
     def _run_ahead(self) -> None:
-        """In real time, the control period whose commands are all in: integrated now, published on time.
+        """In real time, what the commands in hand cover: integrated and published now, up to a period early.
 
-        The physics of a period is the same whenever it is computed, once its commands are in force; run
-        at their arrival it is off the path of the next state's publishing, which then goes out as its
-        time comes, leaving the controllers more of the period to answer in. Never more than one publish
-        period ahead of the wall clock, never past what the commands in hand cover.
+        The physics of a control period is the same whenever it is computed once its commands are in
+        force (lockstep's); run as soon as they are, the state after it goes out up to one publish period
+        before its wall time, and a controller has the rest of this period and all of the next to answer
+        it. Never more than one publish period ahead of the wall clock, never past what the commands of
+        every vehicle cover.
         """
         assert self._pacer is not None
         newest = [timing.newest_command_ns for timing in self._timing]
@@ -855,7 +858,7 @@ class SimulatorNode(Node):
         if now_ns is None or any(stamp_ns is None for stamp_ns in newest):
             return
         covered_ns = min(stamp_ns for stamp_ns in newest if stamp_ns is not None) + self._timing[0].period_ns
-        self._integrate_to(min(covered_ns, now_ns + self.publish_period_ns))
+        self._run_to(min(covered_ns, now_ns + self.publish_period_ns))
 
     def _watch_lockstep(self) -> None:
         """Resend the state while simulated time waits; say when a controller is missing or went silent."""
